@@ -1,0 +1,592 @@
+"""The face model: an immutable volumetric description of one subject's face.
+
+A :class:`FaceModel` holds everything the simulator and the solvers need and never changes
+after construction: variants are made with :meth:`FaceModel.with_` (a validated copy).
+
+Units: millimetre (positions), megapascal (stiffness, muscle stress), radian (angles).
+Coordinates: x toward the subject's left, y up, z toward the nose; origin between the
+condyles (see ``shared/PHYSICS.md`` section 6).
+
+File format: one compressed ``.npz`` whose ``meta`` entry is a JSON string carrying
+``format`` (``"facesim-model"``) and ``version`` (:data:`FORMAT_VERSION`); every array field
+is stored under a fixed key. Unknown versions and missing fields are refused with a one-line
+:class:`~facesim.errors.ModelFileError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from facesim.errors import FacesimError, ModelFileError
+
+FORMAT_NAME = "facesim-model"
+FORMAT_VERSION = 1
+
+#: The rigid bodies flesh can be attached to, and what a rigid surface can move with.
+BONES = ("cranium", "jaw")
+SIDES = ("L", "R", "M")
+
+
+def _as(a, dtype, shape_tail: tuple[int, ...], name: str) -> np.ndarray:
+    """Contiguous copy-free view of ``a`` as ``dtype`` with trailing shape ``shape_tail``."""
+    arr = np.ascontiguousarray(np.asarray(a), dtype=dtype)
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+        want = "(k" + "".join(f", {s}" for s in shape_tail) + ")"
+        raise FacesimError(f"{name}: expected shape {want}, got {arr.shape}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _check_index(arr: np.ndarray, upper: int, name: str) -> None:
+    if arr.size and (arr.min() < 0 or arr.max() >= upper):
+        raise FacesimError(f"{name}: indices must lie in [0, {upper}), got [{arr.min()}, {arr.max()}]")
+
+
+@dataclass(frozen=True)
+class Tissue:
+    """Mooney-Rivlin parameters of one tissue (MPa): psi = c10 (I1b-3) + c01 (I2b-3) + kappa/2 (ln J)^2."""
+
+    name: str
+    c10: float
+    c01: float
+    kappa: float
+
+    @property
+    def shear_modulus(self) -> float:
+        """Small-strain shear modulus mu = 2 (c10 + c01), MPa."""
+        return 2.0 * (self.c10 + self.c01)
+
+
+@dataclass(frozen=True)
+class MuscleSet:
+    """Muscles embedded in the flesh mesh, stored sparsely as (muscle, tet) entries.
+
+    Attributes
+    ----------
+    names : tuple[str, ...], ``n_muscles`` unique names, e.g. ``"zygomaticus_major_L"``.
+    sides : tuple[str, ...], ``"L"``, ``"R"`` or ``"M"`` (midline) per muscle.
+    sigma_max : (n_muscles,) float64, peak isometric stress, MPa.
+    muscle : (k,) int32, muscle index of each entry (entries sorted by muscle, then tet).
+    tet : (k,) int32, tet index of each entry.
+    fraction : (k,) float64, volume fraction of the tet occupied by the muscle, in (0, 1].
+    fibre : (k, 3) float64, unit rest fibre direction of the muscle in that tet.
+    """
+
+    names: tuple[str, ...]
+    sides: tuple[str, ...]
+    sigma_max: np.ndarray
+    muscle: np.ndarray
+    tet: np.ndarray
+    fraction: np.ndarray
+    fibre: np.ndarray
+
+    def __post_init__(self):
+        names = tuple(str(n) for n in self.names)
+        sides = tuple(str(s) for s in self.sides)
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "sides", sides)
+        if len(set(names)) != len(names):
+            raise FacesimError("muscles.names: expected unique names")
+        if len(sides) != len(names) or any(s not in SIDES for s in sides):
+            raise FacesimError(f"muscles.sides: expected one of {SIDES} per muscle")
+        object.__setattr__(self, "sigma_max", _as(self.sigma_max, np.float64, (), "muscles.sigma_max"))
+        if self.sigma_max.shape != (len(names),):
+            raise FacesimError(f"muscles.sigma_max: expected shape ({len(names)},), got {self.sigma_max.shape}")
+        object.__setattr__(self, "muscle", _as(self.muscle, np.int32, (), "muscles.muscle"))
+        k = len(self.muscle)
+        object.__setattr__(self, "tet", _as(self.tet, np.int32, (), "muscles.tet"))
+        object.__setattr__(self, "fraction", _as(self.fraction, np.float64, (), "muscles.fraction"))
+        object.__setattr__(self, "fibre", _as(self.fibre, np.float64, (3,), "muscles.fibre"))
+        for name in ("tet", "fraction", "fibre"):
+            if len(getattr(self, name)) != k:
+                raise FacesimError(f"muscles.{name}: expected {k} entries like muscles.muscle")
+        _check_index(self.muscle, len(names), "muscles.muscle")
+        if k and (self.fraction.min() <= 0.0 or self.fraction.max() > 1.0 + 1e-9):
+            raise FacesimError("muscles.fraction: expected values in (0, 1]")
+        if k and np.abs(np.linalg.norm(self.fibre, axis=1) - 1.0).max() > 1e-6:
+            raise FacesimError("muscles.fibre: expected unit vectors")
+
+    @property
+    def n_muscles(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        """Index of muscle ``name``; a :class:`FacesimError` lists the known names otherwise."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise FacesimError(f"unknown muscle {name!r}; known: {', '.join(self.names)}") from None
+
+    def entries(self, m: int) -> slice:
+        """Slice of the entries of muscle ``m`` (entries are sorted by muscle)."""
+        lo, hi = np.searchsorted(self.muscle, [m, m + 1])
+        return slice(int(lo), int(hi))
+
+    def tets_per_muscle(self) -> np.ndarray:
+        """(n_muscles,) int, number of tets each muscle touches."""
+        return np.bincount(self.muscle, minlength=self.n_muscles)
+
+    def volume_per_muscle(self, tet_volume: np.ndarray) -> np.ndarray:
+        """(n_muscles,) float64 embedded muscle volume, mm^3, from rest tet volumes ``(n_tets,)``."""
+        return np.bincount(self.muscle, weights=self.fraction * tet_volume[self.tet], minlength=self.n_muscles)
+
+    def total_fraction(self, n_tets: int) -> np.ndarray:
+        """(n_tets,) float64, summed muscle volume fraction per tet."""
+        return np.bincount(self.tet, weights=self.fraction, minlength=n_tets)
+
+    def dominant(self, n_tets: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per tet: index of the muscle with the largest fraction (-1 if none), that fraction and its fibre.
+
+        Returns ``(muscle (n_tets,) int32, fraction (n_tets,) float64, fibre (n_tets, 3) float64)``.
+        """
+        best = np.full(n_tets, -1, dtype=np.int32)
+        frac = np.zeros(n_tets)
+        fib = np.zeros((n_tets, 3))
+        if len(self.tet):
+            # sort by (tet, fraction) and keep the last entry of every tet: its largest fraction
+            order = np.lexsort((self.fraction, self.tet))
+            last = np.r_[self.tet[order][1:] != self.tet[order][:-1], True]
+            keep = order[last]
+            best[self.tet[keep]] = self.muscle[keep]
+            frac[self.tet[keep]] = self.fraction[keep]
+            fib[self.tet[keep]] = self.fibre[keep]
+        return best, frac, fib
+
+
+@dataclass(frozen=True)
+class MarkerSet:
+    """Named skin markers bound to skin triangles.
+
+    Attributes
+    ----------
+    names : tuple[str, ...], unique marker names.
+    triangle : (r,) int32, index into ``FaceModel.skin``.
+    bary : (r, 3) float64, barycentric coordinates in that triangle (sum 1, non-negative).
+    offset : (r,) float64, distance along the triangle's outward normal, mm (marker height).
+    head : (r,) bool, True for head (stabilisation) markers on rigid-looking regions.
+    """
+
+    names: tuple[str, ...]
+    triangle: np.ndarray
+    bary: np.ndarray
+    offset: np.ndarray
+    head: np.ndarray
+
+    def __post_init__(self):
+        names = tuple(str(n) for n in self.names)
+        object.__setattr__(self, "names", names)
+        if len(set(names)) != len(names):
+            raise FacesimError("markers.names: expected unique names")
+        r = len(names)
+        object.__setattr__(self, "triangle", _as(self.triangle, np.int32, (), "markers.triangle"))
+        object.__setattr__(self, "bary", _as(self.bary, np.float64, (3,), "markers.bary"))
+        object.__setattr__(self, "offset", _as(self.offset, np.float64, (), "markers.offset"))
+        object.__setattr__(self, "head", _as(self.head, bool, (), "markers.head"))
+        for name in ("triangle", "bary", "offset", "head"):
+            if len(getattr(self, name)) != r:
+                raise FacesimError(f"markers.{name}: expected {r} entries, one per marker name")
+        if r and (self.bary.min() < -1e-9 or np.abs(self.bary.sum(1) - 1.0).max() > 1e-9):
+            raise FacesimError("markers.bary: expected non-negative barycentric coordinates summing to 1")
+
+    @property
+    def n_markers(self) -> int:
+        return len(self.names)
+
+
+@dataclass(frozen=True)
+class RigidSurface:
+    """A closed triangle surface that moves rigidly with a bone (teeth, gums, eyeball, bone).
+
+    ``vertices (k, 3) float64`` in rest position, mm; ``faces (l, 3) int32`` outward oriented;
+    ``bone`` is ``"cranium"`` or ``"jaw"``.
+    """
+
+    name: str
+    bone: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    def __post_init__(self):
+        if self.bone not in BONES:
+            raise FacesimError(f"surface {self.name!r}: bone must be one of {BONES}, got {self.bone!r}")
+        object.__setattr__(self, "vertices", _as(self.vertices, np.float64, (3,), f"{self.name}.vertices"))
+        object.__setattr__(self, "faces", _as(self.faces, np.int32, (3,), f"{self.name}.faces"))
+        _check_index(self.faces, len(self.vertices), f"{self.name}.faces")
+
+
+@dataclass(frozen=True)
+class JawGeometry:
+    """Temporomandibular joint geometry in the cranium frame at rest (Sifakis 2005 section 8).
+
+    condyle_right, condyle_left : (3,) rest condyle centres, mm.
+    track_direction : (3,) unit vector v along the sliding tracks, back to front (inclined down).
+    track_length : d, mm, how far each condyle may slide along its track.
+    max_opening : rad, largest opening rotation about the intercondylar axis.
+    incisor : (3,) lower incisal reference point (moves with the jaw), mm.
+    """
+
+    condyle_right: np.ndarray
+    condyle_left: np.ndarray
+    track_direction: np.ndarray
+    track_length: float
+    max_opening: float
+    incisor: np.ndarray
+
+    def __post_init__(self):
+        for name in ("condyle_right", "condyle_left", "track_direction", "incisor"):
+            v = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            if v.shape != (3,):
+                raise FacesimError(f"jaw.{name}: expected shape (3,), got {v.shape}")
+            v.setflags(write=False)
+            object.__setattr__(self, name, v)
+        if abs(np.linalg.norm(self.track_direction) - 1.0) > 1e-9:
+            raise FacesimError("jaw.track_direction: expected a unit vector")
+        object.__setattr__(self, "track_length", float(self.track_length))
+        object.__setattr__(self, "max_opening", float(self.max_opening))
+        if not self.track_length > 0 or not 0 < self.max_opening < np.pi / 2:
+            raise FacesimError("jaw: expected track_length > 0 and max_opening in (0, pi/2)")
+
+    @property
+    def u(self) -> np.ndarray:
+        """(3,) unit intercondylar axis, right condyle to left condyle."""
+        d = self.condyle_left - self.condyle_right
+        return d / np.linalg.norm(d)
+
+    @property
+    def v(self) -> np.ndarray:
+        """(3,) unit sliding-track direction (alias of ``track_direction``)."""
+        return self.track_direction
+
+    @property
+    def w(self) -> np.ndarray:
+        """(3,) unit normal of the track plane, w = v x u (Sifakis 2005 section 8)."""
+        w = np.cross(self.v, self.u)
+        return w / np.linalg.norm(w)
+
+    @property
+    def midpoint(self) -> np.ndarray:
+        """(3,) rest midpoint m of the condyles, mm."""
+        return 0.5 * (self.condyle_left + self.condyle_right)
+
+    @property
+    def intercondylar_distance(self) -> float:
+        """l, mm."""
+        return float(np.linalg.norm(self.condyle_left - self.condyle_right))
+
+
+@dataclass(frozen=True)
+class FaceModel:
+    """Volumetric face: flesh tets, tissues, muscles, bone attachments, surfaces, markers, TMJ.
+
+    Attributes
+    ----------
+    X : (n, 3) float64, rest node positions, mm.
+    tets : (m, 4) int32, flesh tetrahedra, positively oriented.
+    tissue : (m,) int32, index into ``tissues`` per tet.
+    tissues : tuple[Tissue, ...], material of each tissue label.
+    simulated : (m,) bool, True for tets of the simulated face region; the others move with the
+        cranium (their nodes are all in ``cranium_nodes``).
+    muscles : MuscleSet.
+    cranium_nodes, jaw_nodes : (p,), (q,) int32, sorted, disjoint node sets attached to the
+        cranium and to the mandible.
+    skin : (s, 3) int32, outer skin triangles (closed, outward oriented), node indices.
+    lip_upper, lip_lower : (a, 3), (b, 3) int32, flesh boundary triangles of the upper and
+        lower lip contact surfaces (the faces across the mouth slit and facing the teeth).
+    bones : tuple[RigidSurface, ...], the cranium and mandible surfaces (rendering, contact).
+    colliders : tuple[RigidSurface, ...], teeth, gums and eyeballs the flesh must not enter.
+    markers : MarkerSet, bound to ``skin`` triangles.
+    jaw : JawGeometry.
+    meta : dict, JSON-serialisable build information (resolution, seed, mesh quality, ...).
+    """
+
+    X: np.ndarray
+    tets: np.ndarray
+    tissue: np.ndarray
+    tissues: tuple[Tissue, ...]
+    simulated: np.ndarray
+    muscles: MuscleSet
+    cranium_nodes: np.ndarray
+    jaw_nodes: np.ndarray
+    skin: np.ndarray
+    lip_upper: np.ndarray
+    lip_lower: np.ndarray
+    bones: tuple[RigidSurface, ...]
+    colliders: tuple[RigidSurface, ...]
+    markers: MarkerSet
+    jaw: JawGeometry
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "X", _as(self.X, np.float64, (3,), "X"))
+        object.__setattr__(self, "tets", _as(self.tets, np.int32, (4,), "tets"))
+        n, m = len(self.X), len(self.tets)
+        _check_index(self.tets, n, "tets")
+        for name, dtype, tail in (("tissue", np.int32, ()), ("simulated", bool, ())):
+            arr = _as(getattr(self, name), dtype, tail, name)
+            if len(arr) != m:
+                raise FacesimError(f"{name}: expected one entry per tet ({m}), got {len(arr)}")
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "tissues", tuple(self.tissues))
+        _check_index(self.tissue, len(self.tissues), "tissue")
+        for name in ("cranium_nodes", "jaw_nodes"):
+            arr = _as(getattr(self, name), np.int32, (), name)
+            _check_index(arr, n, name)
+            object.__setattr__(self, name, arr)
+        if np.intersect1d(self.cranium_nodes, self.jaw_nodes).size:
+            raise FacesimError("cranium_nodes and jaw_nodes: expected disjoint sets")
+        for name in ("skin", "lip_upper", "lip_lower"):
+            arr = _as(getattr(self, name), np.int32, (3,), name)
+            _check_index(arr, n, name)
+            object.__setattr__(self, name, arr)
+        _check_index(self.muscles.tet, m, "muscles.tet")
+        _check_index(self.markers.triangle, len(self.skin), "markers.triangle")
+        object.__setattr__(self, "bones", tuple(self.bones))
+        object.__setattr__(self, "colliders", tuple(self.colliders))
+        object.__setattr__(self, "meta", dict(self.meta))
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_nodes(self) -> int:
+        return len(self.X)
+
+    @property
+    def n_tets(self) -> int:
+        return len(self.tets)
+
+    @property
+    def n_simulated(self) -> int:
+        return int(self.simulated.sum())
+
+    @property
+    def n_muscles(self) -> int:
+        return self.muscles.n_muscles
+
+    @property
+    def n_markers(self) -> int:
+        return self.markers.n_markers
+
+    # ------------------------------------------------------------ geometry
+    def tet_volumes(self, x: np.ndarray | None = None) -> np.ndarray:
+        """(m,) float64 signed tet volumes, mm^3, at positions ``x (n, 3)`` (rest if None)."""
+        x = self.X if x is None else np.asarray(x, dtype=np.float64)
+        p = x[self.tets]
+        e = p[:, 1:] - p[:, :1]
+        return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
+
+    def marker_positions(self, x: np.ndarray | None = None) -> np.ndarray:
+        """(r, 3) float64 marker positions, mm, for node positions ``x (n, 3)`` (rest if None).
+
+        Each marker sits at its barycentric point of its skin triangle, moved ``offset`` mm
+        along the triangle's unit normal (markers are linear in ``x`` when offsets are zero).
+        """
+        x = self.X if x is None else np.asarray(x, dtype=np.float64)
+        tri = x[self.skin[self.markers.triangle]]  # (r, 3, 3)
+        p = np.einsum("rk,rkj->rj", self.markers.bary, tri)
+        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        return p + self.markers.offset[:, None] * nrm
+
+    def surface(self, name: str) -> RigidSurface:
+        """The bone or collider surface called ``name``."""
+        for s in self.bones + self.colliders:
+            if s.name == name:
+                return s
+        known = ", ".join(s.name for s in self.bones + self.colliders)
+        raise FacesimError(f"unknown surface {name!r}; known: {known}")
+
+    def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """((3,), (3,)) lower and upper corners of the rest nodes, mm."""
+        return self.X.min(axis=0), self.X.max(axis=0)
+
+    # ------------------------------------------------------------- variants
+    def with_(self, **changes) -> "FaceModel":
+        """A validated copy with the given fields replaced (the model itself never changes)."""
+        return dataclasses.replace(self, **changes)
+
+    def with_tissues(self, tissues) -> "FaceModel":
+        """Copy with a new tissue table (same labels), e.g. stiffer flesh."""
+        return self.with_(tissues=tuple(tissues))
+
+    def with_muscle_strength(self, sigma_max) -> "FaceModel":
+        """Copy with new per-muscle peak stresses ``(n_muscles,)``, MPa."""
+        return self.with_(muscles=dataclasses.replace(self.muscles, sigma_max=np.asarray(sigma_max, float)))
+
+    # ------------------------------------------------------------------- I/O
+    def save(self, path) -> Path:
+        """Write the model to one compressed ``.npz`` (atomically) and return its path."""
+        path = Path(path)
+        arrays = _to_arrays(self)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
+        os.close(fd)
+        try:
+            np.savez_compressed(tmp, **arrays)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        return path
+
+    @staticmethod
+    def load(path) -> "FaceModel":
+        """Read a model written by :meth:`save`; see :func:`load_model`."""
+        return load_model(path)
+
+
+# --------------------------------------------------------------------- format
+def _surfaces_to_arrays(prefix: str, surfaces) -> tuple[dict, list]:
+    arrays, meta = {}, []
+    for i, s in enumerate(surfaces):
+        arrays[f"{prefix}{i}_vertices"] = s.vertices
+        arrays[f"{prefix}{i}_faces"] = s.faces
+        meta.append({"name": s.name, "bone": s.bone})
+    return arrays, meta
+
+
+def _to_arrays(model: FaceModel) -> dict[str, np.ndarray]:
+    arrays = {
+        "X": model.X,
+        "tets": model.tets,
+        "tissue": model.tissue.astype(np.int8 if len(model.tissues) < 128 else np.int32),
+        "simulated": model.simulated,
+        "cranium_nodes": model.cranium_nodes,
+        "jaw_nodes": model.jaw_nodes,
+        "skin": model.skin,
+        "lip_upper": model.lip_upper,
+        "lip_lower": model.lip_lower,
+        "muscle_sigma_max": model.muscles.sigma_max,
+        "muscle_entry_muscle": model.muscles.muscle.astype(np.int16),
+        "muscle_entry_tet": model.muscles.tet,
+        "muscle_entry_fraction": model.muscles.fraction.astype(np.float32),
+        "muscle_entry_fibre": model.muscles.fibre.astype(np.float32),
+        "marker_triangle": model.markers.triangle,
+        "marker_bary": model.markers.bary,
+        "marker_offset": model.markers.offset,
+        "marker_head": model.markers.head,
+        "jaw_condyle_right": model.jaw.condyle_right,
+        "jaw_condyle_left": model.jaw.condyle_left,
+        "jaw_track_direction": model.jaw.track_direction,
+        "jaw_incisor": model.jaw.incisor,
+    }
+    bone_arrays, bone_meta = _surfaces_to_arrays("bone", model.bones)
+    coll_arrays, coll_meta = _surfaces_to_arrays("collider", model.colliders)
+    arrays.update(bone_arrays)
+    arrays.update(coll_arrays)
+    meta = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "tissues": [dataclasses.asdict(t) for t in model.tissues],
+        "muscle_names": list(model.muscles.names),
+        "muscle_sides": list(model.muscles.sides),
+        "marker_names": list(model.markers.names),
+        "bones": bone_meta,
+        "colliders": coll_meta,
+        "jaw_track_length": model.jaw.track_length,
+        "jaw_max_opening": model.jaw.max_opening,
+        "build": model.meta,
+    }
+    arrays["meta"] = np.array(json.dumps(meta))
+    return arrays
+
+
+def load_model(path) -> FaceModel:
+    """Read a :class:`FaceModel` from a ``.npz`` written by :meth:`FaceModel.save`.
+
+    Raises :class:`~facesim.errors.ModelFileError` (one line: file, field, expectation) when the
+    file is missing, not an npz, not a facesim model, of an unknown version or lacks a field.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(path, "no such file (expected a facesim model .npz)")
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+        raise ModelFileError(path, f"not a readable .npz file ({type(exc).__name__})") from None
+    with data:
+        if "meta" not in data.files:
+            raise ModelFileError(path, "field 'meta' missing: not a facesim model file")
+        try:
+            meta = json.loads(str(data["meta"]))
+        except (json.JSONDecodeError, ValueError):
+            raise ModelFileError(path, "field 'meta': expected a JSON string") from None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
+            raise ModelFileError(path, f"field 'meta.format': expected {FORMAT_NAME!r}, got {meta.get('format')!r}"
+                                 if isinstance(meta, dict) else "field 'meta': expected a JSON object")
+        version = meta.get("version")
+        if version != FORMAT_VERSION:
+            raise ModelFileError(path, f"field 'meta.version': unknown model format version {version!r} "
+                                       f"(this facesim reads version {FORMAT_VERSION})")
+
+        def arr(key: str) -> np.ndarray:
+            if key not in data.files:
+                raise ModelFileError(path, f"field {key!r} missing (model format version {FORMAT_VERSION})")
+            return data[key]
+
+        def m(key: str) -> Any:
+            if key not in meta:
+                raise ModelFileError(path, f"field 'meta.{key}' missing (model format version {FORMAT_VERSION})")
+            return meta[key]
+
+        def surfaces(prefix: str, key: str) -> tuple[RigidSurface, ...]:
+            return tuple(RigidSurface(s["name"], s["bone"], arr(f"{prefix}{i}_vertices"), arr(f"{prefix}{i}_faces"))
+                         for i, s in enumerate(m(key)))
+
+        try:
+            return FaceModel(
+                X=arr("X"),
+                tets=arr("tets"),
+                tissue=arr("tissue"),
+                tissues=tuple(Tissue(**t) for t in m("tissues")),
+                simulated=arr("simulated"),
+                muscles=MuscleSet(
+                    names=tuple(m("muscle_names")),
+                    sides=tuple(m("muscle_sides")),
+                    sigma_max=arr("muscle_sigma_max"),
+                    muscle=arr("muscle_entry_muscle"),
+                    tet=arr("muscle_entry_tet"),
+                    fraction=arr("muscle_entry_fraction"),
+                    fibre=_renormalise(arr("muscle_entry_fibre")),
+                ),
+                cranium_nodes=arr("cranium_nodes"),
+                jaw_nodes=arr("jaw_nodes"),
+                skin=arr("skin"),
+                lip_upper=arr("lip_upper"),
+                lip_lower=arr("lip_lower"),
+                bones=surfaces("bone", "bones"),
+                colliders=surfaces("collider", "colliders"),
+                markers=MarkerSet(
+                    names=tuple(m("marker_names")),
+                    triangle=arr("marker_triangle"),
+                    bary=arr("marker_bary"),
+                    offset=arr("marker_offset"),
+                    head=arr("marker_head"),
+                ),
+                jaw=JawGeometry(
+                    condyle_right=arr("jaw_condyle_right"),
+                    condyle_left=arr("jaw_condyle_left"),
+                    track_direction=arr("jaw_track_direction"),
+                    track_length=m("jaw_track_length"),
+                    max_opening=m("jaw_max_opening"),
+                    incisor=arr("jaw_incisor"),
+                ),
+                meta=m("build"),
+            )
+        except ModelFileError:
+            raise
+        except (FacesimError, KeyError, TypeError) as exc:
+            raise ModelFileError(path, f"inconsistent model data: {exc}") from None
+
+
+def _renormalise(v: np.ndarray) -> np.ndarray:
+    """Fibres are stored as float32; restore exact unit length in float64."""
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v, axis=1, keepdims=True) if len(v) else v.reshape(0, 3)
