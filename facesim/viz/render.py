@@ -1,0 +1,342 @@
+"""Off-screen pictures of a face model with pyvista: skin, bones, colliders, muscles, markers.
+
+Everything renders off screen (no display needed: on Linux without ``DISPLAY`` VTK is pointed
+at EGL when ``libEGL`` is present, otherwise it picks its own fallback), so the functions
+work the same on a laptop, a server and CI.
+
+Coordinates: x toward the subject's left, y up, z toward the nose (mm). The ``"front"`` view
+looks from +z toward -z with +y up, ``"side"`` from +x (the subject's left), ``"top"`` and
+``"bottom"`` from +y and -y with the nose (+z) up in the picture.
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import math
+import os
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from facesim._files import atomic_write, require_suffix
+from facesim.errors import FacesimError
+from facesim.model import FaceModel
+
+#: Direction from the model centre to the camera, and the camera's up vector, per view.
+VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "front": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "side": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+    "three_quarter": ((0.7, 0.15, 1.0), (0.0, 1.0, 0.0)),
+    "top": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "bottom": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+}
+#: What can be drawn; ``show`` and the CLI's ``--hide`` take these names.
+LAYERS = ("skin", "bones", "colliders", "muscles", "markers")
+DEFAULT_SHOW = LAYERS
+
+SKIN_COLOUR = "#e3b196"
+BONE_COLOUR = "#fffff0"  # ivory
+TEETH_COLOUR = "#fbfbf8"
+EYE_COLOUR = "#dfe8f2"
+GUM_COLOUR = "#c8707a"
+OTHER_COLLIDER_COLOUR = "#b8bcc4"
+MARKER_COLOUR = "#00d0ff"
+HEAD_MARKER_COLOUR = "#ffd21f"
+BACKGROUND = ("#16181d", "#3b404c")  # bottom, top of the gradient
+TEXT_COLOUR = "#f0f0f0"
+
+#: Categorical colours for muscles: strong, mutually distinct, none close to skin or ivory.
+PALETTE = (
+    "#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",
+    "#469990", "#9a6324", "#800000", "#aaffc3", "#808000", "#000075", "#dcbeff", "#ff6f91",
+    "#2f4f4f", "#ffe119", "#6a5acd", "#ff4500", "#20b2aa", "#8b008b", "#556b2f", "#d2691e",
+)
+#: Facial muscles with a colour of their own (index into :data:`PALETTE`), so a muscle keeps
+#: its colour in every model and picture; other names take the unused colours in name order.
+KNOWN_MUSCLES = (
+    "zygomaticus_major", "levator_labii_superioris", "orbicularis_oris", "depressor_anguli_oris",
+    "frontalis", "buccinator", "corrugator_supercilii", "mentalis", "risorius", "masseter",
+    "depressor_labii_inferioris", "levator_anguli_oris", "temporalis", "procerus",
+    "orbicularis_oculi", "zygomaticus_minor", "platysma", "nasalis",
+    "levator_labii_superioris_alaeque_nasi", "depressor_septi", "incisivus", "pterygoid",
+    "digastric", "auricularis",
+)
+
+_SIDE_SUFFIX = re.compile(r"[_\-. ](l|r|left|right)$", re.IGNORECASE)
+
+
+def _pyvista():
+    """pyvista, set up for off-screen rendering; imported on first use (it takes about a second)."""
+    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") and ctypes.util.find_library("EGL"):
+        # Without an X server VTK first tries X (printing a warning), then EGL: go to EGL directly.
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    import pyvista
+
+    pyvista.OFF_SCREEN = True
+    return pyvista
+
+
+def muscle_base_name(name: str) -> str:
+    """Muscle name without its side suffix: ``"zygomaticus_major_L"`` -> ``"zygomaticus_major"``."""
+    return _SIDE_SUFFIX.sub("", name)
+
+
+def muscle_colours(names) -> dict[str, str]:
+    """Hex colour per muscle name; the left and right muscle of a pair share one colour."""
+    bases = sorted({muscle_base_name(n) for n in names})
+    fixed = {b: PALETTE[KNOWN_MUSCLES.index(b.lower()) % len(PALETTE)]
+             for b in bases if b.lower() in KNOWN_MUSCLES}
+    spare = [c for c in PALETTE if c not in fixed.values()] or list(PALETTE)
+    others = [b for b in bases if b not in fixed]
+    fixed.update({b: spare[i % len(spare)] for i, b in enumerate(others)})
+    return {n: fixed[muscle_base_name(n)] for n in names}
+
+
+def _collider_colour(name: str) -> str:
+    low = name.lower()
+    if "teeth" in low or "tooth" in low or "incisor" in low or "molar" in low:
+        return TEETH_COLOUR
+    if "eye" in low:
+        return EYE_COLOUR
+    if "gum" in low or "gingiva" in low:
+        return GUM_COLOUR
+    return OTHER_COLLIDER_COLOUR
+
+
+def _check(view: str, show) -> tuple[str, ...]:
+    if view not in VIEWS:
+        raise FacesimError(f"view: unknown view {view!r}; expected one of {', '.join(VIEWS)}")
+    show = (show,) if isinstance(show, str) else tuple(show)
+    unknown = [s for s in show if s not in LAYERS]
+    if unknown:
+        raise FacesimError(f"show: unknown layer {unknown[0]!r}; expected some of {', '.join(LAYERS)}")
+    return show
+
+
+def _polydata(vertices: np.ndarray, faces: np.ndarray):
+    """pyvista.PolyData of a triangle surface ``vertices (k, 3)``, ``faces (l, 3)``."""
+    cells = np.hstack([np.full((len(faces), 1), 3, dtype=np.int64), faces.astype(np.int64)])
+    return _pyvista().PolyData(np.asarray(vertices, dtype=np.float64), cells.ravel())
+
+
+def bone_motion(model: FaceModel, x) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per bone, the affine map ``(A (3, 3), t (3,))`` carrying rest to current positions.
+
+    Fitted by least squares to the bone's attached nodes (exact when they move affinely, as
+    the cranium and jaw frames do); the identity when ``x`` is None, and a pure translation
+    when a bone has too few non-coplanar nodes to fix an affine map.
+    """
+    identity = (np.eye(3), np.zeros(3))
+    motion = {"cranium": identity, "jaw": identity}
+    if x is None:
+        return motion
+    x = np.asarray(x, dtype=np.float64)
+    for bone, nodes in (("cranium", model.cranium_nodes), ("jaw", model.jaw_nodes)):
+        if not len(nodes):
+            continue
+        X0, x0 = model.X[nodes], x[nodes]
+        H = np.hstack([X0, np.ones((len(nodes), 1))])
+        if len(nodes) >= 4 and np.linalg.matrix_rank(H) == 4:
+            M = np.linalg.lstsq(H, x0, rcond=None)[0]  # (4, 3): x = X A^T + t
+            motion[bone] = (M[:3].T, M[3])
+        else:
+            motion[bone] = (np.eye(3), (x0 - X0).mean(axis=0))
+    return motion
+
+
+def _add_surfaces(plotter, model: FaceModel, x, show) -> None:
+    motion = bone_motion(model, x)
+    groups = (("bones", model.bones, lambda s: BONE_COLOUR),
+              ("colliders", model.colliders, lambda s: _collider_colour(s.name)))
+    for layer, surfaces, colour in groups:
+        if layer not in show:
+            continue
+        for s in surfaces:
+            A, t = motion[s.bone]
+            mesh = _polydata(s.vertices @ A.T + t, s.faces)
+            plotter.add_mesh(mesh, color=colour(s), smooth_shading=True, specular=0.25)
+
+
+def _add_muscles(plotter, model: FaceModel, points, threshold: float) -> list[tuple[str, str]]:
+    """Draw each muscle's tets with fraction > threshold; return the legend entries."""
+    mus = model.muscles
+    colours = muscle_colours(mus.names)
+    pv = _pyvista()
+    grid = pv.UnstructuredGrid({pv.CellType.TETRA: model.tets.astype(np.int64)}, points)
+    legend = {}
+    for m, name in enumerate(mus.names):
+        sl = mus.entries(m)
+        cells = mus.tet[sl][mus.fraction[sl] > threshold]
+        if not len(cells):
+            continue
+        surface = grid.extract_cells(cells).extract_surface(algorithm="dataset_surface")
+        plotter.add_mesh(surface, color=colours[name], smooth_shading=False, specular=0.2)
+        legend.setdefault(muscle_base_name(name), colours[name])
+    return sorted(legend.items())
+
+
+def _add_markers(plotter, model: FaceModel, x) -> None:
+    if not model.n_markers:
+        return
+    lo, hi = model.bounding_box()
+    radius = 0.008 * float(np.linalg.norm(hi - lo))
+    p = model.marker_positions(x)
+    pv = _pyvista()
+    sphere = pv.Sphere(radius=radius, theta_resolution=12, phi_resolution=12)
+    for mask, colour in ((~model.markers.head, MARKER_COLOUR), (model.markers.head, HEAD_MARKER_COLOUR)):
+        if mask.any():
+            glyphs = pv.PolyData(p[mask]).glyph(geom=sphere, scale=False, orient=False)
+            plotter.add_mesh(glyphs, color=colour, smooth_shading=True)
+
+
+def _set_camera(plotter, points: np.ndarray, view: str) -> None:
+    direction, up = (np.asarray(v, dtype=np.float64) for v in VIEWS[view])
+    direction /= np.linalg.norm(direction)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    distance = 3.0 * float(np.linalg.norm(hi - lo)) + 1.0
+    plotter.camera_position = [tuple(centre + distance * direction), tuple(centre), tuple(up)]
+    plotter.reset_camera()  # keeps the direction, fits the distance to what is drawn
+
+
+def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
+                 size=(1200, 1200), x=None, legend: bool = True, title: str | None = None,
+                 muscle_threshold: float = 0.3) -> np.ndarray:
+    """Render the model and return the picture as an ``(h, w, 3)`` uint8 RGB array.
+
+    Parameters are those of :func:`render_model` (without the path).
+    """
+    show = _check(view, show)
+    points = model.X if x is None else np.asarray(x, dtype=np.float64)
+    if points.shape != model.X.shape:
+        raise FacesimError(f"x: expected node positions of shape {model.X.shape}, got {points.shape}")
+    if not 0.0 <= skin_opacity <= 1.0:
+        raise FacesimError(f"skin_opacity: expected a value in [0, 1], got {skin_opacity}")
+    width, height = (int(v) for v in size)
+    plotter = _pyvista().Plotter(off_screen=True, window_size=(width, height))
+    try:
+        plotter.set_background(BACKGROUND[0], top=BACKGROUND[1])
+        entries = []
+        if "muscles" in show:
+            entries = _add_muscles(plotter, model, points, muscle_threshold)
+        _add_surfaces(plotter, model, x, show)
+        if "markers" in show:
+            _add_markers(plotter, model, x)
+        if "skin" in show and len(model.skin):
+            # No depth peeling: it renders blank on Mesa's llvmpipe through EGL. VTK draws
+            # translucent actors after the opaque ones, which is enough for one skin layer.
+            plotter.add_mesh(_polydata(points, model.skin), color=SKIN_COLOUR, opacity=skin_opacity,
+                             smooth_shading=True, specular=0.1)
+        _set_camera(plotter, points, view)
+        image = plotter.screenshot(None, return_img=True)
+    finally:
+        plotter.close()
+    return _annotate(np.ascontiguousarray(image[..., :3]), entries if legend else [], title)
+
+
+def _annotate(image: np.ndarray, entries, title: str | None) -> np.ndarray:
+    """Draw the muscle legend (upper right) and the caption (lower left) onto an RGB image.
+
+    Drawn with PIL rather than VTK so that labels stay white and legible whatever the muscle
+    colour, and look the same at every picture size.
+    """
+    if not entries and not title:
+        return image
+    from PIL import Image, ImageDraw, ImageFont
+
+    h, w = image.shape[:2]
+    px = max(10, min(w, h) // 45)
+    font = ImageFont.load_default(size=px)
+    canvas = Image.fromarray(image).convert("RGBA")
+    overlay = Image.new("RGBA", canvas.size, (0, 0, 0, 0))
+    draw = ImageDraw.Draw(overlay)
+    if entries:
+        labels = [name.replace("_", " ") for name, _ in entries]
+        line, pad, swatch = int(1.45 * px), px // 2, px
+        box_w = int(3 * pad + swatch + max(draw.textlength(t, font=font) for t in labels))
+        box_h = 2 * pad + line * len(labels)
+        x0, y0 = w - box_w - pad, pad
+        draw.rectangle([x0, y0, x0 + box_w, y0 + box_h], fill=(16, 18, 24, 170))
+        for k, (label, (_, colour)) in enumerate(zip(labels, entries)):
+            y = y0 + pad + k * line
+            draw.rectangle([x0 + pad, y + (line - swatch) // 2, x0 + pad + swatch, y + (line + swatch) // 2],
+                           fill=colour, outline=TEXT_COLOUR)
+            draw.text((x0 + 2 * pad + swatch, y + line // 2), label, font=font, fill=TEXT_COLOUR, anchor="lm")
+    if title:
+        draw.text((px, h - px), title, font=ImageFont.load_default(size=int(1.4 * px)), fill=TEXT_COLOUR,
+                  anchor="ls")
+    return np.asarray(Image.alpha_composite(canvas, overlay).convert("RGB"))
+
+
+def _save_png(image: np.ndarray, path) -> Path:
+    from PIL import Image
+
+    path = require_suffix(path, (".png",), "a picture file name")
+    return atomic_write(path, lambda tmp: Image.fromarray(image).save(tmp, format="PNG"))
+
+
+def render_model(model: FaceModel, path, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
+                 size=(1200, 1200), x=None, legend: bool = True, title: str | None = None,
+                 muscle_threshold: float = 0.3) -> Path:
+    """Render one view of the model to a PNG and return its path.
+
+    Parameters
+    ----------
+    model : FaceModel.
+    path : output file, ``.png``.
+    view : one of :data:`VIEWS` (``front``, ``side``, ``three_quarter``, ``top``, ``bottom``).
+    show : layers to draw, some of :data:`LAYERS`: the skin (semi-transparent), bones (ivory),
+        colliders (teeth, eyes, gums), muscles (boundary of the tets where the muscle's volume
+        fraction exceeds ``muscle_threshold``; one colour per muscle, shared by a left/right
+        pair) and markers (small spheres; head markers yellow, the others cyan).
+    skin_opacity : in [0, 1].
+    size : (width, height) in pixels.
+    x : (n, 3) float64 current node positions, mm, or None for the rest shape; bones and
+        colliders then follow the affine motion of their attached nodes (:func:`bone_motion`).
+    legend : draw a legend of the muscle names shown.
+    title : optional caption in the lower left corner.
+    """
+    return _save_png(render_image(model, view, show, skin_opacity, size, x, legend, title, muscle_threshold), path)
+
+
+def tile_images(images, columns: int | None = None, fill=BACKGROUND[0]) -> np.ndarray:
+    """Tile equally sized ``(h, w, 3)`` uint8 images row by row into one image.
+
+    ``columns`` defaults to ceil(sqrt(len(images))); empty cells are filled with ``fill``.
+    """
+    images = list(images)
+    if not images:
+        raise FacesimError("contact sheet: expected at least one view")
+    h, w = images[0].shape[:2]
+    columns = columns or math.ceil(math.sqrt(len(images)))
+    rows = math.ceil(len(images) / columns)
+    rgb = np.array([int(fill[i:i + 2], 16) for i in (1, 3, 5)], dtype=np.uint8)
+    sheet = np.empty((rows * h, columns * w, 3), dtype=np.uint8)
+    sheet[:] = rgb
+    for k, image in enumerate(images):
+        r, c = divmod(k, columns)
+        sheet[r * h:(r + 1) * h, c * w:(c + 1) * w] = image
+    return sheet
+
+
+def render_contact_sheet(model: FaceModel, path, views=("front", "side", "three_quarter", "top"),
+                         show=DEFAULT_SHOW, skin_opacity: float = 0.35, tile_size=(600, 600), x=None,
+                         columns: int | None = None, progress: bool = True, muscle_threshold: float = 0.3) -> Path:
+    """Render several views, each captioned with its name, tiled into one PNG; return its path.
+
+    ``views`` : names from :data:`VIEWS`; ``tile_size`` : (width, height) of one view in pixels;
+    ``columns`` : views per row (default: a square-ish grid); the muscle legend is drawn in
+    the first view only. Other parameters as in :func:`render_model`. A tqdm bar on stderr
+    reports progress unless ``progress`` is False.
+    """
+    from tqdm import tqdm
+
+    views = (views,) if isinstance(views, str) else tuple(views)
+    for v in views:
+        _check(v, show)
+    images = [render_image(model, v, show, skin_opacity, tile_size, x, legend=(k == 0),
+                           title=v.replace("_", " "), muscle_threshold=muscle_threshold)
+              for k, v in enumerate(tqdm(views, desc="rendering views", unit="view", disable=not progress))]
+    return _save_png(tile_images(images, columns), path)

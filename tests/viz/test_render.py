@@ -1,0 +1,142 @@
+"""Off-screen rendering: files written, pictures not blank, cameras pointing the right way."""
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from facesim.errors import FacesimError
+from facesim.viz.render import (KNOWN_MUSCLES, LAYERS, PALETTE, bone_motion, muscle_base_name, muscle_colours,
+                                render_contact_sheet, render_image, render_model, tile_images)
+
+SIZE = (240, 200)  # width, height: not square, so a transposed picture would show
+
+
+def red_mask(img):
+    """Pixels of the zygomaticus colour (#e6194b, shaded): strongly red."""
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    return (r > 90) & (r > 2 * g) & (r > 1.5 * b)
+
+
+def blue_mask(img):
+    """Pixels of the orbicularis oris colour (#4363d8, shaded): strongly blue."""
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    return (b > 90) & (b > 1.6 * r) & (b > 1.2 * g)
+
+
+def centre(mask):
+    """(column, row) mean of a non-empty mask, as fractions of width and height."""
+    rows, cols = np.nonzero(mask)
+    assert len(rows) > 50, "colour not found in the picture"
+    return cols.mean() / mask.shape[1], rows.mean() / mask.shape[0]
+
+
+def test_render_model_writes_non_blank_png(box_model, tmp_path):
+    path = render_model(box_model, tmp_path / "pics" / "front.png", size=SIZE)
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape == (SIZE[1], SIZE[0], 3)
+    assert img.reshape(-1, 3).std(axis=0).max() > 15.0  # not a blank picture
+    assert red_mask(img).sum() > 50 and blue_mask(img).sum() > 50
+
+
+def test_front_view_shows_subjects_left_on_the_right(box_model):
+    # zygomaticus_major_L lies at x > 5 (subject's left): a front view shows it right of centre,
+    # and above the orbicularis oris (y < 0)
+    img = render_image(box_model, "front", show=("muscles",), size=SIZE, legend=False)
+    (zx, zy), (ox, oy) = centre(red_mask(img)), centre(blue_mask(img))
+    assert zx > 0.55 and zx > ox and zy < oy
+
+
+def test_side_view_shows_nose_on_the_left(box_model):
+    # from +x with y up, +z (the nose side, where both muscles are) is to the viewer's left
+    img = render_image(box_model, "side", show=("muscles", "bones"), size=SIZE, legend=False)
+    (zx, _), (ox, _) = centre(red_mask(img)), centre(blue_mask(img))
+    assert zx < 0.5 and ox < 0.5
+
+
+def test_top_view_has_nose_up_and_left_on_the_left(box_model):
+    # the cranium box lies at z < -25, behind both muscles (z > 0); the zygomaticus is left of the
+    # orbicularis oris (x > 5 against |x| < 15)
+    img = render_image(box_model, "top", show=("muscles", "bones"), size=SIZE, legend=False)
+    (zx, zy), (ox, oy) = centre(red_mask(img)), centre(blue_mask(img))
+    assert zy < 0.5 and oy < 0.5  # z > 0 is up in the picture
+    assert zx < ox  # seen from above with the nose up, the subject's left is on the left
+
+
+def test_hiding_layers_changes_the_picture(box_model):
+    full = render_image(box_model, "three_quarter", size=SIZE, legend=False)
+    no_muscles = render_image(box_model, "three_quarter", show=("skin", "bones", "colliders", "markers"),
+                              size=SIZE, legend=False)
+    assert red_mask(full).sum() > 50 and red_mask(no_muscles).sum() == 0
+
+
+def test_legend_adds_pixels(box_model):
+    plain = render_image(box_model, "front", size=SIZE, legend=False)
+    legend = render_image(box_model, "front", size=SIZE, legend=True)
+    assert np.abs(plain.astype(int) - legend.astype(int)).sum() > 0
+
+
+def test_contact_sheet_tiles_views(box_model, tmp_path):
+    path = render_contact_sheet(box_model, tmp_path / "sheet.png", views=("front", "side", "top"),
+                                tile_size=(120, 100), progress=False)
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape == (200, 240, 3)  # 2 x 2 grid of 120 x 100 tiles, one empty
+    empty = img[100:, 120:]
+    assert (empty == empty[0, 0]).all() and img[:100, :120].std() > 10
+
+
+def test_tile_images_layout():
+    tiles = [np.full((2, 3, 3), k, dtype=np.uint8) for k in range(5)]
+    sheet = tile_images(tiles, columns=2)
+    assert sheet.shape == (6, 6, 3)
+    assert sheet[0, 0, 0] == 0 and sheet[0, 3, 0] == 1 and sheet[2, 0, 0] == 2 and sheet[4, 0, 0] == 4
+
+
+@pytest.mark.parametrize("name, base", [("zygomaticus_major_L", "zygomaticus_major"), ("masseter", "masseter"),
+                                        ("temporal", "temporal"), ("buccinator-right", "buccinator"),
+                                        ("mentalis", "mentalis"), ("risorius R", "risorius")])
+def test_muscle_base_name(name, base):
+    assert muscle_base_name(name) == base
+
+
+def test_muscle_colours_pairs_share_and_names_keep_their_colour():
+    names = ["zygomaticus_major_L", "zygomaticus_major_R", "risorius_L", "mystery_L", "mystery_R", "other"]
+    c = muscle_colours(names)
+    assert c["zygomaticus_major_L"] == c["zygomaticus_major_R"] and c["mystery_L"] == c["mystery_R"]
+    assert len({c[n] for n in ("zygomaticus_major_L", "risorius_L", "mystery_L", "other")}) == 4
+    # a catalogue muscle has the same colour whatever else is in the model
+    assert muscle_colours(["zygomaticus_major_L"])["zygomaticus_major_L"] == c["zygomaticus_major_L"]
+    many = muscle_colours(list(KNOWN_MUSCLES))
+    assert len(set(many.values())) == min(len(KNOWN_MUSCLES), len(PALETTE))
+
+
+def test_bone_motion_recovers_affine_maps(box_model):
+    rng = np.random.default_rng(0)
+    A, t = np.eye(3) + 0.1 * rng.normal(size=(3, 3)), rng.normal(size=3)
+    x = box_model.X.copy()
+    x[box_model.jaw_nodes] = box_model.X[box_model.jaw_nodes] @ A.T + t
+    motion = bone_motion(box_model, x)
+    # the jaw nodes of the box lie in one plane (z = -20): only a translation can be fitted
+    assert np.allclose(motion["cranium"][0], np.eye(3)) and np.allclose(motion["cranium"][1], 0)
+    jaw_nodes = box_model.jaw_nodes
+    fitted = box_model.X[jaw_nodes] + motion["jaw"][1]
+    np.testing.assert_allclose(fitted.mean(0), x[jaw_nodes].mean(0))
+    x2 = box_model.X @ A.T + t  # everything moves affinely: the cranium map is recovered exactly
+    np.testing.assert_allclose(bone_motion(box_model, x2)["cranium"][0], A, atol=1e-9)
+    np.testing.assert_allclose(bone_motion(box_model, x2)["cranium"][1], t, atol=1e-9)
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(view="back"), "unknown view 'back'"),
+    (dict(show=("skin", "hair")), "unknown layer 'hair'"),
+    (dict(skin_opacity=1.5), "skin_opacity"),
+])
+def test_bad_arguments_are_one_line_errors(box_model, tmp_path, kwargs, words):
+    with pytest.raises(FacesimError) as info:
+        render_model(box_model, tmp_path / "x.png", size=SIZE, **kwargs)
+    assert words in str(info.value) and "\n" not in str(info.value)
+
+
+def test_png_suffix_required(box_model, tmp_path):
+    with pytest.raises(FacesimError, match="x.jpg: expected a picture file name ending in .png"):
+        render_model(box_model, tmp_path / "x.jpg", size=SIZE)
+    assert set(LAYERS) == {"skin", "bones", "colliders", "muscles", "markers"}
