@@ -1,0 +1,7 @@
+"""``python -m facesim``: the ``facesim`` command."""
+
+import sys
+
+from facesim.cli import main
+
+sys.exit(main())

@@ -1,0 +1,389 @@
+"""The ``facesim`` command.
+
+Every sub-command has ``--help``. User mistakes (missing or malformed files, bad options)
+print one line ``facesim: error: <message>`` to stderr and exit with status 2, never a
+traceback. Heavy modules (the anatomy builder, pyvista) are imported only by the commands
+that need them, so ``facesim --help`` and ``facesim model info`` start fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import zipfile
+import zlib
+from pathlib import Path
+
+import facesim
+from facesim._files import require_suffix
+from facesim.errors import FacesimError, ModelFileError
+
+RESOLUTIONS = ("test", "coarse", "medium", "paper")
+#: Environment variable naming the model ``facesim demo`` uses instead of the shipped one.
+MODEL_ENV = "FACESIM_MODEL"
+EXIT_USAGE = 2
+
+
+# ------------------------------------------------------------------ helpers
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors are one line (sub-parsers inherit the class)."""
+
+    def error(self, message):
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def default_model_path() -> Path:
+    """The model ``facesim demo`` runs on: ``$FACESIM_MODEL`` if set, else the shipped
+    ``meshes/face_coarse.npz`` of the repository holding the ``facesim`` package."""
+    env = os.environ.get(MODEL_ENV)
+    if env:
+        return Path(env)
+    return Path(facesim.__file__).resolve().parent.parent / "meshes" / "face_coarse.npz"
+
+
+def _size(text: str) -> tuple[int, int]:
+    """argparse type for ``WIDTHxHEIGHT`` in pixels."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, e.g. 1200x1200, got {text!r}") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise argparse.ArgumentTypeError(f"expected a size between 16 and 8192 pixels per side, got {text!r}")
+    return w, h
+
+
+def _opacity(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = -1.0
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return v
+
+
+def _load(path):
+    """load_model, with the few unreadable files it lets through also turned into one line."""
+    from facesim.model import load_model
+
+    try:
+        return load_model(path)
+    except FacesimError:
+        raise
+    except (TypeError, AttributeError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        # e.g. a .npy renamed .npz (np.load returns an array) or corrupt compressed data
+        raise ModelFileError(path, f"not a readable facesim model ({type(exc).__name__}: {exc})") from None
+
+
+# ------------------------------------------------------------------ model info
+def model_summary(model, path=None) -> dict:
+    """JSON-serialisable description of a model: sizes, names, attachments, quality, bounds (mm)."""
+    from facesim.anatomy.quality import quality_summary
+
+    lo, hi = model.bounding_box()
+    volumes = model.tet_volumes()
+    mus = model.muscles
+    tets_per_muscle = mus.tets_per_muscle()
+    volume_per_muscle = mus.volume_per_muscle(volumes)
+    summary = {
+        "file": str(path) if path is not None else None,
+        "n_nodes": model.n_nodes,
+        "n_tets": model.n_tets,
+        "n_simulated_tets": model.n_simulated,
+        "n_muscles": model.n_muscles,
+        "n_markers": model.n_markers,
+        "n_head_markers": int(model.markers.head.sum()),
+        "n_cranium_nodes": int(len(model.cranium_nodes)),
+        "n_jaw_nodes": int(len(model.jaw_nodes)),
+        "n_free_nodes": int(model.n_nodes - len(model.cranium_nodes) - len(model.jaw_nodes)),
+        "n_skin_triangles": int(len(model.skin)),
+        "volume_mm3": float(volumes.sum()),
+        "muscles": [
+            {"name": name, "side": side, "n_tets": int(tets_per_muscle[i]),
+             "volume_mm3": float(volume_per_muscle[i]), "sigma_max_mpa": float(mus.sigma_max[i])}
+            for i, (name, side) in enumerate(zip(mus.names, mus.sides))
+        ],
+        "markers": [{"name": name, "head": bool(head)} for name, head in zip(model.markers.names, model.markers.head)],
+        "tissues": [{"name": t.name, "n_tets": int((model.tissue == i).sum()), "c10_mpa": t.c10, "c01_mpa": t.c01,
+                     "kappa_mpa": t.kappa} for i, t in enumerate(model.tissues)],
+        "surfaces": [{"name": s.name, "bone": s.bone, "kind": kind, "n_triangles": int(len(s.faces))}
+                     for kind, group in (("bone", model.bones), ("collider", model.colliders)) for s in group],
+        "quality": quality_summary(model.X, model.tets) if model.n_tets else None,
+        "bounding_box_mm": {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist()},
+        "build": model.meta,
+    }
+    return summary
+
+
+def _fmt_names(items: list[str], width: int = 96, indent: str = "  ") -> str:
+    lines, line = [], indent
+    for item in items:
+        if len(line) + len(item) + 2 > width and line.strip():
+            lines.append(line.rstrip())
+            line = indent
+        line += item + "  "
+    lines.append(line.rstrip())
+    return "\n".join(lines)
+
+
+def format_summary(s: dict) -> str:
+    """Human-readable table of :func:`model_summary`."""
+    q = s["quality"]
+    bb = s["bounding_box_mm"]
+    rows = [
+        ("model", s["file"] or "(in memory)"),
+        ("nodes", f"{s['n_nodes']:,}  (cranium-attached {s['n_cranium_nodes']:,}, jaw-attached "
+                  f"{s['n_jaw_nodes']:,}, free {s['n_free_nodes']:,})"),
+        ("tets", f"{s['n_tets']:,}  (simulated {s['n_simulated_tets']:,})"),
+        ("volume", f"{s['volume_mm3'] / 1e3:,.1f} cm^3"),
+        ("skin", f"{s['n_skin_triangles']:,} triangles"),
+        ("muscles", f"{s['n_muscles']}"),
+        ("markers", f"{s['n_markers']}  (head {s['n_head_markers']})"),
+        ("tissues", ", ".join(f"{t['name']} ({t['n_tets']:,} tets)" for t in s["tissues"])),
+        ("surfaces", ", ".join(f"{x['name']} ({x['kind']}, {x['bone']})" for x in s["surfaces"]) or "none"),
+        ("bounding box", "  ".join(f"{a} [{lo:.1f}, {hi:.1f}]" for a, lo, hi in zip("xyz", bb["min"], bb["max"]))
+         + " mm  (size " + " x ".join(f"{v:.1f}" for v in bb["size"]) + " mm)"),
+    ]
+    if q:
+        rows.append(("mesh quality", f"dihedral angles {q['min_dihedral_deg']:.1f}..{q['max_dihedral_deg']:.1f} deg, "
+                                     f"volume ratio worst {q['worst_volume_ratio']:.3f} mean "
+                                     f"{q['mean_volume_ratio']:.3f}"))
+        rows.append(("", f"inverted {q['n_inverted']}, degenerate {q['n_degenerate']}, "
+                         f"smallest tet {q['min_volume_mm3']:.3g} mm^3"))
+    if s["build"]:
+        rows.append(("build", ", ".join(f"{k}={v}" for k, v in s["build"].items()
+                                        if isinstance(v, (str, int, float, bool)))))
+    out = [f"{k:<14}{v}" for k, v in rows]
+    if s["muscles"]:
+        out.append("")
+        out.append(f"{'muscle':<44}{'side':>5}{'tets':>9}{'volume mm^3':>14}{'sigma_max MPa':>15}")
+        for m in s["muscles"]:
+            out.append(f"{m['name']:<44}{m['side']:>5}{m['n_tets']:>9,}{m['volume_mm3']:>14,.0f}"
+                       f"{m['sigma_max_mpa']:>15.3f}")
+    if s["markers"]:
+        out.append("")
+        out.append("markers (* = head marker, used to stabilise the head):")
+        out.append(_fmt_names([m["name"] + ("*" if m["head"] else "") for m in s["markers"]]))
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------ commands
+def cmd_model_build(args) -> int:
+    out = require_suffix(args.output, (".npz",), "a model file name")
+    import facesim.anatomy as anatomy
+
+    build_head = getattr(anatomy, "build_head", None)
+    if build_head is None:
+        raise FacesimError("model build: this installation has no anatomy builder (facesim.anatomy.build_head)")
+    t0 = time.perf_counter()
+    model = build_head(resolution=args.resolution, seed=args.seed, progress=not args.quiet)
+    seconds = time.perf_counter() - t0
+    model.save(out)
+    print(f"built {args.resolution} head (seed {args.seed}) in {seconds:.1f} s: {model.n_nodes:,} nodes, "
+          f"{model.n_tets:,} tets ({model.n_simulated:,} simulated), {model.n_muscles} muscles, "
+          f"{model.n_markers} markers -> {out}")
+    return 0
+
+
+def cmd_model_info(args) -> int:
+    summary = model_summary(_load(args.model), args.model)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(format_summary(summary))
+    return 0
+
+
+def cmd_model_export(args) -> int:
+    from facesim.export import export_skin, export_surfaces, export_volume
+
+    if args.output is None and args.surfaces is None:
+        raise FacesimError("model export: nothing to do; give -o OUT.{vtu,ply,obj} and/or --surfaces DIR")
+    out = None
+    if args.output is not None:
+        out = require_suffix(args.output, (".vtu", ".ply", ".obj"), "an export file name")
+    model = _load(args.model)
+    if out is not None:
+        if out.suffix.lower() == ".vtu":
+            export_volume(model, out)
+            print(f"wrote volume mesh ({model.n_tets:,} tets) -> {out}")
+        else:
+            export_skin(model, out)
+            print(f"wrote skin ({len(model.skin):,} triangles) -> {out}")
+    if args.surfaces is not None:
+        paths = export_surfaces(model, args.surfaces)
+        print(f"wrote {len(paths)} rigid surfaces -> {args.surfaces}")
+        for p in paths:
+            print(f"  {p}")
+    return 0
+
+
+def _layers(hide: str | None) -> tuple[str, ...]:
+    from facesim.viz.render import LAYERS
+
+    hidden = [h.strip() for h in (hide or "").split(",") if h.strip()]
+    unknown = [h for h in hidden if h not in LAYERS]
+    if unknown:
+        raise FacesimError(f"--hide: unknown layer {unknown[0]!r}; expected some of {','.join(LAYERS)}")
+    return tuple(layer for layer in LAYERS if layer not in hidden)
+
+
+def cmd_model_render(args) -> int:
+    out = require_suffix(args.output, (".png",), "a picture file name")
+    show = _layers(args.hide)
+    from facesim.viz.render import render_contact_sheet, render_model
+
+    model = _load(args.model)
+    if args.sheet:
+        size = args.size or (600, 600)
+        render_contact_sheet(model, out, show=show, skin_opacity=args.opacity, tile_size=size,
+                             progress=not args.quiet)
+    else:
+        render_model(model, out, view=args.view, show=show, skin_opacity=args.opacity,
+                     size=args.size or (1200, 1200), legend=not args.no_legend)
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from tqdm import tqdm
+
+    path = default_model_path()
+    if not path.is_file():
+        raise FacesimError(
+            f"{path}: no such file; the demo needs a model: build one with 'facesim model build "
+            f"--resolution coarse -o {path}' or set {MODEL_ENV}=M.npz")
+    model = _load(path)
+    print(f"model {path}: {model.n_nodes:,} nodes, {model.n_tets:,} tets, {model.n_muscles} muscles, "
+          f"{model.n_markers} markers")
+    from facesim.viz.render import render_contact_sheet, render_model
+
+    out = Path(args.output)
+    size = args.size
+    tile = (size[0] // 2, size[1] // 2)
+    jobs = [
+        ("front.png", lambda p: render_model(model, p, view="front", size=size)),
+        ("side.png", lambda p: render_model(model, p, view="side", size=size)),
+        ("three_quarter.png", lambda p: render_model(model, p, view="three_quarter", size=size)),
+        ("muscles.png", lambda p: render_model(model, p, view="front", size=size, show=("muscles",))),
+        ("sheet.png", lambda p: render_contact_sheet(model, p, tile_size=tile, progress=False)),
+    ]
+    written = []
+    for name, job in tqdm(jobs, desc="demo pictures", unit="picture", disable=args.quiet):
+        written.append(job(out / name))
+    # The solver is not part of facesim yet: the demo shows the model; simulation comes next.
+    print(f"wrote {len(written)} pictures of the rest model to {out}/:")
+    for p in written:
+        print(f"  {p}")
+    return 0
+
+
+# ------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="facesim",
+        description="Anatomical finite-element face simulator. Units: mm, N, MPa, s. Coordinates: x toward the "
+                    "subject's left, y up, z toward the nose.",
+        epilog="Run 'facesim COMMAND --help' for the options of a command.")
+    parser.add_argument("--version", action="version", version=f"facesim {facesim.__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    demo = commands.add_parser(
+        "demo", help="render the shipped default model into a folder of PNGs",
+        description="Run facesim on the shipped default model (meshes/face_coarse.npz, or the file named by "
+                    f"${MODEL_ENV}): renders front, side, three-quarter and muscle pictures and a contact sheet.")
+    demo.add_argument("-o", "--output", default="facesim_demo", metavar="OUT_DIR",
+                      help="folder for the pictures (default: %(default)s)")
+    demo.add_argument("--size", type=_size, default=(1200, 1200), metavar="WxH",
+                      help="size of each picture in pixels, the contact sheet is the same size (default: 1200x1200)")
+    demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    demo.set_defaults(func=cmd_demo)
+
+    model = commands.add_parser("model", help="build, inspect, export and render face models",
+                                description="Build, inspect, export and render face models (.npz files).")
+    sub = model.add_subparsers(dest="model_command", metavar="SUBCOMMAND", required=True)
+
+    build = sub.add_parser(
+        "build", help="build a procedural head model",
+        description="Build a procedural anatomical head (flesh tets, muscles, skull, jaw, teeth, markers) and "
+                    "save it as a model .npz. Resolutions: test (~5K tets, seconds), coarse, medium, paper "
+                    "(finest, slow).")
+    build.add_argument("--resolution", choices=RESOLUTIONS, default="coarse",
+                       help="mesh resolution (default: %(default)s)")
+    build.add_argument("--seed", type=int, default=0,
+                       help="random seed of the procedural anatomy (default: %(default)s)")
+    build.add_argument("-o", "--output", required=True, metavar="M.npz", help="model file to write")
+    build.add_argument("-q", "--quiet", action="store_true", help="no progress output while building")
+    build.set_defaults(func=cmd_model_build)
+
+    info = sub.add_parser(
+        "info", help="print sizes, names, mesh quality and bounds of a model",
+        description="Print node, tet, simulated-tet, muscle, marker and attachment counts, muscle and marker "
+                    "names (head markers starred), mesh quality (dihedral angles in degrees, volume ratio "
+                    "V/V_regular: 1 regular, 0 sliver, <0 inverted) and the bounding box in mm.")
+    info.add_argument("model", metavar="M.npz", help="model file")
+    info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    info.set_defaults(func=cmd_model_info)
+
+    export = sub.add_parser(
+        "export", help="write a model as VTU (volume) or PLY/OBJ (skin) and its rigid surfaces as PLY",
+        description="Export a model for other tools, positions in mm. OUT.vtu: the flesh tets with cell data "
+                    "tissue, simulated, muscle (dominant muscle index, -1 none), muscle_fraction, "
+                    "muscle_total_fraction, fibre, and point data attachment (0 free, 1 cranium, 2 jaw). "
+                    "OUT.ply / OUT.obj: the skin surface. --surfaces DIR: every bone and collider as DIR/NAME.ply.")
+    export.add_argument("model", metavar="M.npz", help="model file")
+    export.add_argument("-o", "--output", metavar="OUT", help="output file: .vtu (volume), .ply or .obj (skin)")
+    export.add_argument("--surfaces", metavar="DIR", help="folder for the bone and collider surfaces (.ply)")
+    export.set_defaults(func=cmd_model_export)
+
+    from facesim.viz.render import LAYERS, VIEWS  # cheap: pyvista itself is imported on first render
+
+    render = sub.add_parser(
+        "render", help="render a model to a PNG (off screen)",
+        description="Render a model off screen: semi-transparent skin, ivory bones, teeth and eyes, muscles "
+                    "(one colour per muscle, shared by a left/right pair, with a legend) and markers (head "
+                    "markers yellow). Views: front looks from +z (the nose side) with +y up; side looks from +x "
+                    "(the subject's left); top and bottom look along -y and +y with the nose up.")
+    render.add_argument("model", metavar="M.npz", help="model file")
+    render.add_argument("-o", "--output", required=True, metavar="OUT.png", help="picture to write")
+    render.add_argument("--view", choices=tuple(VIEWS), default="front",
+                        help="camera direction (default: %(default)s)")
+    render.add_argument("--hide", metavar="LAYERS", default="",
+                        help=f"comma-separated layers not to draw, some of {','.join(LAYERS)}")
+    render.add_argument("--sheet", action="store_true",
+                        help="contact sheet of the front, side, three-quarter and top views instead of one view")
+    render.add_argument("--size", type=_size, default=None, metavar="WxH",
+                        help="picture size in pixels, per view with --sheet (default: 1200x1200, with --sheet 600x600)")
+    render.add_argument("--opacity", type=_opacity, default=0.35,
+                        help="skin opacity, 0 (invisible) to 1 (opaque) (default: %(default)s)")
+    render.add_argument("--no-legend", action="store_true", help="no muscle legend")
+    render.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    render.set_defaults(func=cmd_model_render)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Run the ``facesim`` command with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        return int(args.func(args) or 0)
+    except SystemExit as exc:  # argparse: --help, --version, usage errors
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_USAGE)
+    except FacesimError as exc:
+        print(f"facesim: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:  # unwritable output folder, disk full, a folder where a file is expected ...
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"facesim: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("facesim: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
