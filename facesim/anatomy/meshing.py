@@ -1,0 +1,174 @@
+"""From implicit head fields to a labelled flesh tet mesh.
+
+Steps: marching cubes on the flesh field -> pytetwild (fTetWild) tetrahedralisation, finer in
+the simulated face than in the attached back of the head -> positive orientation -> boundary
+faces labelled by the part they lie on (skin, mouth lining, cranium, mandible, eye, joint) ->
+bone attachments -> simulated region and tissue labels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytetwild
+from scipy import ndimage
+from skimage import measure
+
+from facesim.anatomy import sdf
+from facesim.anatomy.phantom import HeadFields, Subject
+from facesim.errors import FacesimError
+
+#: Boundary-face labels.
+SKIN, MOUTH, CRANIUM, JAW, EYE, JOINT = range(6)
+LABEL_NAMES = ("skin", "mouth", "cranium", "jaw", "eye", "joint")
+
+
+def isosurface(field: np.ndarray, grid: sdf.Grid, smooth_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Zero level set of ``field`` as ``(vertices (k, 3) float64 mm, faces (l, 3) int32)``, outward oriented."""
+    f = ndimage.gaussian_filter(field, smooth_mm / grid.h) if smooth_mm > 0 else field
+    if f.min() >= 0 or f.max() <= 0:
+        raise FacesimError("isosurface: the field has no zero crossing on the grid")
+    # pad with 'outside' so every surface closes
+    f = np.pad(f, 1, constant_values=max(float(f.max()), 1.0))
+    v, faces, _, _ = measure.marching_cubes(f, 0.0, spacing=(grid.h,) * 3, gradient_direction="ascent")
+    v = v + np.asarray(grid.lo) - grid.h
+    return v.astype(np.float64), faces.astype(np.int32)
+
+
+def _sizing_mesh(lo, hi, step: float, size_fn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A structured background tet mesh over the box ``[lo, hi]`` with target edge lengths ``size_fn(points)``."""
+    axes = [np.arange(a - step, b + 2 * step, step) for a, b in zip(lo, hi)]
+    n = [len(a) for a in axes]
+    P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange(P.shape[0]).reshape(n)
+    c = [idx[i:n[0] - 1 + i, j:n[1] - 1 + j, k:n[2] - 1 + k].ravel() for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+    # Kuhn split of every cube into six tets (consistent across neighbours)
+    v000, v001, v010, v011, v100, v101, v110, v111 = c
+    tets = np.concatenate([
+        np.stack(t, 1) for t in (
+            (v000, v100, v110, v111), (v000, v100, v101, v111), (v000, v001, v101, v111),
+            (v000, v001, v011, v111), (v000, v010, v011, v111), (v000, v010, v110, v111))
+    ]).astype(np.int32)
+    return P, tets, np.asarray(size_fn(P), float)
+
+
+def tetrahedralise(vertices, faces, edge_face: float, edge_back: float, simulated_fn, epsilon: float = 8e-4,
+                   threads: int = 0):
+    """fTetWild on a closed surface; target edge ``edge_face`` mm where ``simulated_fn(p)`` holds, else ``edge_back``.
+
+    Returns ``(X (n, 3) float64, tets (m, 4) int32)`` with positive orientation and no unused nodes.
+    fTetWild is not bit-reproducible between runs (wildmeshing/fTetWild#72); everything the
+    builder derives from a given tet mesh is.
+    """
+    lo, hi = vertices.min(0), vertices.max(0)
+    bgP, bgT, bgV = _sizing_mesh(lo, hi, 6.0, lambda p: np.where(simulated_fn(p), edge_face, edge_back))
+    X, T = pytetwild.tetrahedralize(vertices, faces, edge_length_abs=edge_face, epsilon=epsilon,
+                                    num_threads=threads, bg_vertices=bgP, bg_tets=bgT, bg_values=bgV)
+    X = np.asarray(X, np.float64)
+    T = np.asarray(T, np.int32)
+    used, inv = np.unique(T, return_inverse=True)
+    X, T = X[used], inv.reshape(T.shape).astype(np.int32)
+    vol = signed_volumes(X, T)
+    flip = vol < 0
+    T[flip] = T[flip][:, [0, 2, 1, 3]]
+    return X, T
+
+
+def signed_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    e = X[T[:, 1:]] - X[T[:, :1]]
+    return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
+
+
+def boundary_faces(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Faces used by exactly one tet, outward oriented for positive tets: ``(faces (b, 3), tet (b,))``."""
+    # the face opposite vertex k, ordered so its normal points away from vertex k
+    local = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]])
+    F = T[:, local].reshape(-1, 3)
+    owner = np.repeat(np.arange(len(T)), 4)
+    key = np.sort(F, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    once = first[counts == 1]
+    once.sort()
+    return F[once].astype(np.int32), owner[once]
+
+
+def face_components(faces: np.ndarray) -> np.ndarray:
+    """Connected-component label per face (faces sharing an edge are connected)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    fid = np.repeat(np.arange(len(faces)), 3)
+    _, inv = np.unique(e, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    a, b = fid[order][:-1], fid[order][1:]
+    same = inv[order][:-1] == inv[order][1:]
+    g = coo_matrix((np.ones(same.sum()), (a[same], b[same])), shape=(len(faces), len(faces)))
+    return connected_components(g, directed=False)[1]
+
+
+def is_closed_manifold(faces: np.ndarray) -> bool:
+    """Every edge shared by exactly two faces, with opposite orientations."""
+    if len(faces) == 0:
+        return False
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    und = np.sort(directed, axis=1)
+    _, counts = np.unique(und, axis=0, return_counts=True)
+    if not np.all(counts == 2):
+        return False
+    _, dcounts = np.unique(directed, axis=0, return_counts=True)
+    return bool(np.all(dcounts == 1))
+
+
+@dataclass(frozen=True)
+class LabelledMesh:
+    X: np.ndarray
+    tets: np.ndarray
+    faces: np.ndarray          # (b, 3) boundary faces
+    face_label: np.ndarray     # (b,) one of SKIN..JOINT
+    skin: np.ndarray           # (s, 3) the closed outer surface
+    cranium_nodes: np.ndarray
+    jaw_nodes: np.ndarray
+    simulated: np.ndarray
+
+
+def label_boundary(X, faces, fields: HeadFields) -> np.ndarray:
+    """Which part every boundary face lies on: the part field closest to zero at its centroid."""
+    c = X[faces].mean(axis=1)
+    g = fields.grid
+    dist = np.stack([
+        np.abs(g.sample(fields.skin, c)),
+        np.abs(g.sample(fields.mouth, c)),
+        np.abs(g.sample(fields.cranium, c)),
+        np.abs(g.sample(fields.jaw, c)),
+        np.abs(g.sample(fields.eyes, c)),
+        np.abs(g.sample(fields.joint, c)),
+    ], axis=1)
+    return np.argmin(dist, axis=1).astype(np.int8)
+
+
+def label_mesh(X, T, fields: HeadFields, simulated_fn) -> LabelledMesh:
+    faces, _ = boundary_faces(T)
+    lab = label_boundary(X, faces, fields)
+    comp = face_components(faces)
+    # the skin is the boundary component holding most skin-labelled faces (it includes the mouth lining)
+    counts = np.bincount(comp[lab == SKIN], minlength=comp.max() + 1)
+    outer = int(np.argmax(counts))
+    skin = faces[comp == outer]
+    lab = np.where((comp == outer) & (lab != SKIN), MOUTH, lab).astype(np.int8)
+    lab[(comp != outer) & ((lab == SKIN) | (lab == MOUTH))] = CRANIUM  # stray inner faces: treat as bone
+    simulated = simulated_fn(X[T].mean(axis=1))
+    jaw_nodes = np.unique(faces[(comp != outer) & (lab == JAW)])
+    # flesh on the mandible is always simulated: the attached region moves with the cranium only
+    on_jaw = np.zeros(len(X), bool)
+    on_jaw[jaw_nodes] = True
+    simulated |= on_jaw[T].any(axis=1)
+    cran = np.zeros(len(X), bool)
+    cran[np.unique(faces[(comp != outer) & (lab == CRANIUM)])] = True
+    cran[np.unique(T[~simulated])] = True
+    cran[jaw_nodes] = False
+    return LabelledMesh(X=X, tets=T, faces=faces, face_label=lab, skin=skin,
+                        cranium_nodes=np.flatnonzero(cran).astype(np.int32),
+                        jaw_nodes=jaw_nodes.astype(np.int32), simulated=simulated)
