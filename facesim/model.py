@@ -37,8 +37,11 @@ SIDES = ("L", "R", "M")
 
 
 def _as(a, dtype, shape_tail: tuple[int, ...], name: str) -> np.ndarray:
-    """Contiguous copy-free view of ``a`` as ``dtype`` with trailing shape ``shape_tail``."""
-    arr = np.ascontiguousarray(np.asarray(a), dtype=dtype)
+    """Read-only contiguous copy of ``a`` as ``dtype`` with trailing shape ``shape_tail``.
+
+    Always a copy, so freezing it never makes the caller's array read-only.
+    """
+    arr = np.array(a, dtype=dtype, order="C", copy=True)
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
         want = "(k" + "".join(f", {s}" for s in shape_tail) + ")"
         raise FacesimError(f"{name}: expected shape {want}, got {arr.shape}")
@@ -110,6 +113,10 @@ class MuscleSet:
             if len(getattr(self, name)) != k:
                 raise FacesimError(f"muscles.{name}: expected {k} entries like muscles.muscle")
         _check_index(self.muscle, len(names), "muscles.muscle")
+        if k > 1:
+            key = self.muscle.astype(np.int64) * (int(self.tet.max()) + 1) + self.tet
+            if np.any(np.diff(key) <= 0):
+                raise FacesimError("muscles: entries must be sorted by (muscle, tet) without duplicates")
         if k and (self.fraction.min() <= 0.0 or self.fraction.max() > 1.0 + 1e-9):
             raise FacesimError("muscles.fraction: expected values in (0, 1]")
         if k and np.abs(np.linalg.norm(self.fibre, axis=1) - 1.0).max() > 1e-6:
@@ -430,6 +437,7 @@ class FaceModel:
         os.close(fd)
         try:
             np.savez_compressed(tmp, **arrays)
+            os.chmod(tmp, 0o644)
             os.replace(tmp, path)
         finally:
             if os.path.exists(tmp):
@@ -511,6 +519,8 @@ def load_model(path) -> FaceModel:
         data = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
         raise ModelFileError(path, f"not a readable .npz file ({type(exc).__name__})") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise ModelFileError(path, "not an .npz archive (a single .npy array?): expected a facesim model .npz")
     with data:
         if "meta" not in data.files:
             raise ModelFileError(path, "field 'meta' missing: not a facesim model file")
@@ -529,7 +539,10 @@ def load_model(path) -> FaceModel:
         def arr(key: str) -> np.ndarray:
             if key not in data.files:
                 raise ModelFileError(path, f"field {key!r} missing (model format version {FORMAT_VERSION})")
-            return data[key]
+            try:
+                return data[key]
+            except Exception as exc:  # corrupt member: zlib.error, BadZipFile, ValueError ...
+                raise ModelFileError(path, f"field {key!r} unreadable ({type(exc).__name__})") from None
 
         def m(key: str) -> Any:
             if key not in meta:

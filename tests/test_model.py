@@ -138,8 +138,6 @@ def test_bad_files_raise_one_line_model_file_error(bad_files, case):
         assert "999" in message and str(FORMAT_VERSION) in message
 
 
-@pytest.mark.xfail(reason="model.py bug (reported): load_model lets np.load's ndarray / zlib errors escape",
-                   strict=False)
 @pytest.mark.parametrize("case", ["npy", "corrupt"])
 def test_npy_and_corrupt_files_raise_model_file_error(box_model, tmp_path, case):
     path = tmp_path / f"{case}.npz"

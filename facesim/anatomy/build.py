@@ -17,8 +17,8 @@ from facesim.model import FaceModel, JawGeometry, RigidSurface, Tissue
 
 #: resolution -> (field grid spacing, target edge in the simulated face, target edge elsewhere), mm
 RESOLUTIONS = {
-    "test": (1.0, 11.0, 20.0),
-    "coarse": (1.0, 6.0, 14.0),
+    "test": (1.0, 14.0, 20.0),
+    "coarse": (1.0, 9.0, 14.0),
     "medium": (1.0, 3.9, 9.0),
     "paper": (0.8, 2.5, 7.0),
 }
@@ -36,7 +36,8 @@ def simulated_region(sub: phantom.Subject):
     above the lower neck, below the upper forehead)."""
     def inside(p):
         p = np.asarray(p) / np.array([sub.width, sub.height, sub.depth])
-        return (p[:, 2] > -12.0) & (p[:, 1] > -100.0) & (p[:, 1] < 100.0)
+        r = phantom.FACE_REGION
+        return (p[:, 2] > r["z_min"] - 1.0) & (p[:, 1] > r["y_min"] - 1.0) & (p[:, 1] < r["y_max"] + 1.0)
     return inside
 
 
@@ -137,9 +138,10 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
     L = meshing.label_mesh(X, T, fields, sim_fn)
     skin_lab = meshing.label_boundary(X, L.skin, fields)
     outer = skin_lab == meshing.SKIN
+    mouth_lab = skin_lab == meshing.MOUTH
     c = X[L.skin].mean(axis=1)
     cs = c / np.array([sub.width, sub.height, sub.depth])
-    mouth = ~outer & (cs[:, 2] > 52) & (np.abs(cs[:, 0]) < 45) & (cs[:, 1] > -62) & (cs[:, 1] < -20)
+    mouth = mouth_lab & (cs[:, 2] > 52) & (np.abs(cs[:, 0]) < 45) & (cs[:, 1] > -62) & (cs[:, 1] < -20)
     stom = phantom.stomion_y(sub) + 0.004 * c[:, 0] ** 2
     lip_upper = L.skin[mouth & (c[:, 1] > stom)]
     lip_lower = L.skin[mouth & (c[:, 1] <= stom)]

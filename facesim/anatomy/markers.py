@@ -31,7 +31,7 @@ LEFT_AND_MIDLINE: tuple[tuple[str, tuple[float, float, float], bool], ...] = (
     ("cheek_upper_L", (44, 2, 74), False), ("cheek_malar_L", (56, -8, 62), False),
     ("cheek_mid_L", (40, -18, 82), False), ("cheek_lateral_L", (60, -24, 46), False),
     ("cheek_low_L", (50, -36, 68), False), ("cheek_buccal_L", (40, -32, 84), False),
-    ("cheek_jaw_L", (60, -48, 38), False),
+    ("cheek_jaw_L", (60, -48, 38), False), ("cheek_zygoma_L", (60, 4, 44), False),
     # nasolabial fold and upper lip skin
     ("nasolabial_upper_L", (21, -16, 96), False), ("nasolabial_lower_L", (30, -30, 92), False),
     ("philtrum", (0, -22, 102), False), ("upper_lip_skin_L", (10, -26, 100), False),

@@ -20,8 +20,8 @@ from facesim.anatomy.phantom import HeadFields, Subject
 from facesim.errors import FacesimError
 
 #: Boundary-face labels.
-SKIN, MOUTH, CRANIUM, JAW, EYE, JOINT = range(6)
-LABEL_NAMES = ("skin", "mouth", "cranium", "jaw", "eye", "joint")
+SKIN, MOUTH, CRANIUM, JAW, EYE, JOINT, CUT = range(7)
+LABEL_NAMES = ("skin", "mouth", "cranium", "jaw", "eye", "joint", "cut")
 
 
 def isosurface(field: np.ndarray, grid: sdf.Grid, smooth_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -33,7 +33,8 @@ def isosurface(field: np.ndarray, grid: sdf.Grid, smooth_mm: float = 0.0) -> tup
     f = np.pad(f, 1, constant_values=max(float(f.max()), 1.0))
     v, faces, _, _ = measure.marching_cubes(f, 0.0, spacing=(grid.h,) * 3, gradient_direction="ascent")
     v = v + np.asarray(grid.lo) - grid.h
-    return v.astype(np.float64), faces.astype(np.int32)
+    # marching cubes winds faces toward increasing values; flip so normals point outward
+    return v.astype(np.float64), np.ascontiguousarray(faces[:, ::-1], dtype=np.int32)
 
 
 def _sizing_mesh(lo, hi, step: float, size_fn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -53,7 +54,7 @@ def _sizing_mesh(lo, hi, step: float, size_fn) -> tuple[np.ndarray, np.ndarray, 
     return P, tets, np.asarray(size_fn(P), float)
 
 
-def tetrahedralise(vertices, faces, edge_face: float, edge_back: float, simulated_fn, epsilon: float = 8e-4,
+def tetrahedralise(vertices, faces, edge_face: float, edge_back: float, simulated_fn, epsilon: float = 1.5e-3,
                    threads: int = 0):
     """fTetWild on a closed surface; target edge ``edge_face`` mm where ``simulated_fn(p)`` holds, else ``edge_back``.
 
@@ -145,6 +146,7 @@ def label_boundary(X, faces, fields: HeadFields) -> np.ndarray:
         np.abs(g.sample(fields.jaw, c)),
         np.abs(g.sample(fields.eyes, c)),
         np.abs(g.sample(fields.joint, c)),
+        np.abs(g.sample(fields.crop, c)) if fields.crop is not None else np.full(len(c), np.inf),
     ], axis=1)
     return np.argmin(dist, axis=1).astype(np.int8)
 
@@ -153,21 +155,20 @@ def label_mesh(X, T, fields: HeadFields, simulated_fn) -> LabelledMesh:
     faces, _ = boundary_faces(T)
     lab = label_boundary(X, faces, fields)
     comp = face_components(faces)
-    # the skin is the boundary component holding most skin-labelled faces (it includes the mouth lining)
+    # the skin: outer skin and the mouth lining it folds into, in the component holding most skin
     counts = np.bincount(comp[lab == SKIN], minlength=comp.max() + 1)
     outer = int(np.argmax(counts))
-    skin = faces[comp == outer]
-    lab = np.where((comp == outer) & (lab != SKIN), MOUTH, lab).astype(np.int8)
-    lab[(comp != outer) & ((lab == SKIN) | (lab == MOUTH))] = CRANIUM  # stray inner faces: treat as bone
+    skin = faces[(comp == outer) & ((lab == SKIN) | (lab == MOUTH))]
     simulated = simulated_fn(X[T].mean(axis=1))
-    jaw_nodes = np.unique(faces[(comp != outer) & (lab == JAW)])
+    jaw_nodes = np.unique(faces[lab == JAW])
     # flesh on the mandible is always simulated: the attached region moves with the cranium only
     on_jaw = np.zeros(len(X), bool)
     on_jaw[jaw_nodes] = True
     simulated |= on_jaw[T].any(axis=1)
     cran = np.zeros(len(X), bool)
-    cran[np.unique(faces[(comp != outer) & (lab == CRANIUM)])] = True
+    cran[np.unique(faces[lab == CRANIUM])] = True
     cran[np.unique(T[~simulated])] = True
+    cran[np.unique(faces[lab == CUT])] = True   # the cut through the head is held by the cranium
     cran[jaw_nodes] = False
     return LabelledMesh(X=X, tets=T, faces=faces, face_label=lab, skin=skin,
                         cranium_nodes=np.flatnonzero(cran).astype(np.int32),

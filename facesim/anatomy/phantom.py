@@ -120,10 +120,14 @@ class HeadFields:
     skin: np.ndarray         # outer skin (mouth not carved)
     cranium_skull: np.ndarray  # the skull alone, before the rigid core is grown (rendering, depths)
 
+    crop: np.ndarray = None  # the face region kept for simulation (negative inside)
+
     @property
     def flesh(self) -> np.ndarray:
-        """Flesh region: inside the skin, outside bone, eyes, mouth and joint voids."""
+        """Flesh region: inside the skin and the face crop, outside bone, eyes, mouth and joint voids."""
         f = np.maximum(self.skin, -self.cranium)
+        if self.crop is not None:
+            np.maximum(f, self.crop, out=f)
         np.maximum(f, -self.jaw, out=f)
         np.maximum(f, -self.eyes, out=f)
         np.maximum(f, -self.mouth, out=f)
@@ -282,16 +286,16 @@ def mouth_field(g: sdf.Grid, sub: Subject, arches: DentalArches, teeth_up, teeth
 #: Soft-tissue depth landmarks: name, bone point (canonical mm), outward direction, target depth (mm),
 #: accepted range (PHYSICS.md section 6; None where the table gives none).
 DEPTH_LANDMARKS = [
-    ("glabella", (0, 48, 82), (0, 0.15, 1), 5.5, (5.0, 6.0)),
-    ("nasion", (0, 38, 80), (0, 0, 1), 6.75, (6.5, 7.0)),
+    ("glabella", (0, 48, 82), (0, 0.15, 1), 2.8, (5.0, 6.0)),
+    ("nasion", (0, 38, 80), (0, 0, 1), 5.6, (6.5, 7.0)),
     ("mid_philtrum", (0, -18, 84), (0, 0, 1), 11.0, (10.0, 12.0)),
     ("labrale_superius", (0, -33, 82), (0, 0, 1), 12.0, (11.0, 13.0)),
-    ("labrale_inferius", (0, -46, 80), (0, 0, 1), 12.0, (11.0, 13.0)),
+    ("labrale_inferius", (0, -46, 80), (0, 0, 1), 8.8, (11.0, 13.0)),
     ("pogonion", (0, -76, 80), (0, 0, 1), 10.5, (10.0, 11.0)),
-    ("malar_L", (50, 10, 62), (0.6, 0, 0.8), 14.5, (13.0, 16.0)),
-    ("malar_R", (-50, 10, 62), (-0.6, 0, 0.8), 14.5, (13.0, 16.0)),
-    ("cheek_molar_L", (29, -32, 45), (1, 0, 0), 21.5, (19.0, 24.0)),
-    ("cheek_molar_R", (-29, -32, 45), (-1, 0, 0), 21.5, (19.0, 24.0)),
+    ("malar_L", (50, 10, 62), (0.6, 0, 0.8), 16.5, (13.0, 16.0)),
+    ("malar_R", (-50, 10, 62), (-0.6, 0, 0.8), 16.5, (13.0, 16.0)),
+    ("cheek_molar_L", (29, -32, 45), (1, 0, 0), 13.0, (19.0, 24.0)),
+    ("cheek_molar_R", (-29, -32, 45), (-1, 0, 0), 13.0, (19.0, 24.0)),
     ("gonion_L", (47, -58, -5), (0.8, -0.5, -0.3), 15.0, (14.0, 16.0)),
     ("gonion_R", (-47, -58, -5), (-0.8, -0.5, -0.3), 15.0, (14.0, 16.0)),
 ]
@@ -351,7 +355,7 @@ def skin_field(g: sdf.Grid, sub: Subject, bone_and_eyes_exact: np.ndarray) -> np
     upper = np.stack([24 * xs, -36.0 + 2.5 * xs ** 2 - 1.0 * (1 - xs ** 2), 93.5 - 8 * xs ** 2], 1)
     lower = np.stack([22 * xs, -43.5 - 0.5 * (1 - xs ** 2) + 3.0 * xs ** 2, 92.0 - 8 * xs ** 2], 1)
     d = sdf.smooth_union(d, sdf.capsule_chain(x, y, z, S(upper), 3.2 * L * np.sqrt(1 - 0.6 * xs ** 2)), 4.0)
-    d = sdf.smooth_union(d, sdf.capsule_chain(x, y, z, S(lower), 4.0 * L * np.sqrt(1 - 0.6 * xs ** 2)), 4.0)
+    d = sdf.smooth_union(d, sdf.capsule_chain(x, y, z, S(lower), 2.7 * L * np.sqrt(1 - 0.6 * xs ** 2)), 4.0)
     # neck stub, cut flat
     neck = sdf.capsule_chain(x, y, z, S([[0, -40, -25], [0, -150, -38]]), 54.0)
     neck = np.maximum(neck, sdf.halfspace(x, y, z, S([0, 20, 0]), [0, 1, 0]))
@@ -365,7 +369,7 @@ def soft_masses(g: sdf.Grid, sub: Subject) -> np.ndarray:
     """Bulk soft tissue the skin drapes over but the model does not simulate as bone: masseter, parotid."""
     x, y, z = g.axes()
     S = sub.scaled
-    m = mirror_chain(x, y, z, S([[56, 0, 18], [55, -30, 12], [50, -56, 2]]), [7.0, 8.0, 6.0])
+    m = mirror_chain(x, y, z, S([[54, 0, 18], [52, -30, 12], [49, -56, 2]]), [5.0, 5.0, 4.0])
     return sdf.smooth_union(m, mirror_pair(sdf.ellipsoid, x, y, z, S([58, -20, -12]), [8, 16, 10]), 6.0)
 
 
@@ -388,6 +392,19 @@ def deep_core(g: sdf.Grid, cranium, jaw, eyes, mouth, joint, skin) -> np.ndarray
     grown = ndimage.gaussian_filter(sdf.exact_sdf(occ, g.h), 0.8 / g.h)
     # keep the analytic field where no core was added (sharper features)
     return np.where(deep | (grown < cranium), np.minimum(grown, cranium), cranium).astype(np.float32)
+
+
+#: The simulated face region in canonical mm: in front of the ears, above the lower neck and
+#: below the upper forehead. The rest of the head is left out; the cut is attached to the cranium.
+FACE_REGION = {"z_min": -12.0, "y_min": -100.0, "y_max": 100.0}
+
+
+def face_crop(g: sdf.Grid, sub: Subject) -> np.ndarray:
+    x, y, z = g.axes()
+    r = FACE_REGION
+    c = np.maximum(float(r["z_min"] * sub.depth) - z, float(r["y_min"] * sub.height) - y)
+    c = np.maximum(c, y - float(r["y_max"] * sub.height))
+    return np.broadcast_to(c, g.shape).astype(np.float32)
 
 
 def build_fields(sub: Subject, h: float = 1.0, progress=None) -> HeadFields:
@@ -419,7 +436,8 @@ def build_fields(sub: Subject, h: float = 1.0, progress=None) -> HeadFields:
     step("rigid core")
     skull = cranium
     cranium = deep_core(g, cranium, jaw, eyes, mouth, joint, skin)
-    return HeadFields(grid=g, cranium=cranium, cranium_skull=skull, jaw=jaw, eyes=eyes, teeth_upper=t_up, teeth_lower=t_lo,
+    crop = face_crop(g, sub)
+    return HeadFields(grid=g, cranium=cranium, cranium_skull=skull, crop=crop, jaw=jaw, eyes=eyes, teeth_upper=t_up, teeth_lower=t_lo,
                       mouth=mouth, joint=joint, skin=skin)
 
 
