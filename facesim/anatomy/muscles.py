@@ -147,7 +147,6 @@ def embed_muscles(X: np.ndarray, tets: np.ndarray, skin: np.ndarray, grid: sdf.G
             inside = inside.reshape(-1, q)
             frac = inside.mean(axis=1)
             f = fib.reshape(-1, q, 3) * inside[:, :, None]
-            fsum = f.sum(axis=1)
             # a fibre field that reverses within a tet (ring ends) is averaged by sign-aligned sum
             ref = fib.reshape(-1, q, 3)[:, 0]
             sign = np.sign(np.einsum("tqj,tj->tq", fib.reshape(-1, q, 3), ref))

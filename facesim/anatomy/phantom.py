@@ -15,7 +15,6 @@ reproducibly perturbed subject (:func:`subject_from_seed`).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,7 +65,7 @@ EYE_RADIUS = 12.0
 def _arch(half_width: float, front_z: float, depth: float, n: int = 17) -> tuple[np.ndarray, np.ndarray]:
     """Dental-arch centreline ``(n, 2)`` in (x, z), right molars to left molars, and its parameter s in [-1, 1]."""
     s = np.linspace(-1.0, 1.0, n)
-    x = half_width * np.sin(s * np.pi / 2) ** 1 * 1.0
+    x = half_width * np.sin(s * np.pi / 2)
     z = front_z - depth * (1 - np.cos(s * np.pi / 2)) ** 0.85
     return np.stack([x, z], axis=1), s
 
@@ -440,6 +439,3 @@ def build_fields(sub: Subject, h: float = 1.0, progress=None) -> HeadFields:
     return HeadFields(grid=g, cranium=cranium, cranium_skull=skull, crop=crop, jaw=jaw, eyes=eyes, teeth_upper=t_up, teeth_lower=t_lo,
                       mouth=mouth, joint=joint, skin=skin)
 
-
-def with_subject(sub: Subject, **changes) -> Subject:
-    return dataclasses.replace(sub, **changes)
