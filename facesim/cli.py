@@ -178,8 +178,20 @@ def cmd_model_build(args) -> int:
     build_head = getattr(anatomy, "build_head", None)
     if build_head is None:
         raise FacesimError("model build: this installation has no anatomy builder (facesim.anatomy.build_head)")
+    mesh = None
+    if args.mesh_from:
+        src = _load(args.mesh_from)
+        if src.meta.get("seed") not in (None, args.seed) or src.meta.get("resolution") not in (None, args.resolution):
+            raise FacesimError(f"{args.mesh_from}: --mesh-from model was built with seed {src.meta.get('seed')} at "
+                               f"resolution {src.meta.get('resolution')}, expected seed {args.seed} at {args.resolution}")
+        mesh = (src.X, src.tets)
     t0 = time.perf_counter()
-    model = build_head(resolution=args.resolution, seed=args.seed, progress=not args.quiet)
+
+    def say(msg):
+        print(f"[{time.perf_counter() - t0:7.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    model = build_head(resolution=args.resolution, seed=args.seed, progress=None if args.quiet else say,
+                       mesh=mesh)
     seconds = time.perf_counter() - t0
     model.save(out)
     print(f"built {args.resolution} head (seed {args.seed}) in {seconds:.1f} s: {model.n_nodes:,} nodes, "
@@ -309,13 +321,17 @@ def build_parser() -> argparse.ArgumentParser:
     build = sub.add_parser(
         "build", help="build a procedural head model",
         description="Build a procedural anatomical head (flesh tets, muscles, skull, jaw, teeth, markers) and "
-                    "save it as a model .npz. Resolutions: test (~5K tets, seconds), coarse, medium, paper "
-                    "(finest, slow).")
+                    "save it as a model .npz. Resolutions: test (smallest), coarse (~30K tets), medium (~100K), "
+                    "paper (>= 350K simulated tets, slow).")
     build.add_argument("--resolution", choices=RESOLUTIONS, default="coarse",
                        help="mesh resolution (default: %(default)s)")
     build.add_argument("--seed", type=int, default=0,
                        help="random seed of the procedural anatomy (default: %(default)s)")
     build.add_argument("-o", "--output", required=True, metavar="M.npz", help="model file to write")
+    build.add_argument("--mesh-from", metavar="OLD.npz",
+                       help="reuse the flesh tet mesh of an earlier model of the same seed and resolution instead "
+                            "of running fTetWild (whose output differs from run to run): the rebuilt model is "
+                            "then identical to OLD.npz's arrays")
     build.add_argument("-q", "--quiet", action="store_true", help="no progress output while building")
     build.set_defaults(func=cmd_model_build)
 

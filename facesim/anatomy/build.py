@@ -15,12 +15,15 @@ from facesim.anatomy.quality import quality_summary
 from facesim.errors import FacesimError
 from facesim.model import FaceModel, JawGeometry, RigidSurface, Tissue
 
-#: resolution -> (field grid spacing, target edge in the simulated face, target edge elsewhere), mm
+#: resolution -> (field grid spacing mm, target edge in the simulated face mm, target edge
+#: elsewhere mm, fTetWild envelope as a fraction of the bounding-box diagonal). The envelope
+#: decides the tet count at low resolution: thin layers (lids, lips, mouth lining) force small
+#: tets unless the surface may move by up to epsilon * ~330 mm.
 RESOLUTIONS = {
-    "test": (1.0, 14.0, 20.0),
-    "coarse": (1.0, 9.0, 14.0),
-    "medium": (1.0, 3.9, 9.0),
-    "paper": (0.8, 2.5, 7.0),
+    "test": (1.0, 14.0, 20.0, 4.0e-3),
+    "coarse": (1.0, 9.0, 14.0, 3.0e-3),
+    "medium": (1.0, 3.9, 9.0, 2.0e-3),
+    "paper": (0.8, 2.5, 7.0, 1.5e-3),
 }
 
 TISSUES = (
@@ -96,7 +99,8 @@ def measure_depths(X: np.ndarray, skin: np.ndarray, fields: phantom.HeadFields, 
     return out
 
 
-def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads: int = 0) -> FaceModel:
+def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads: int = 0,
+               mesh: tuple[np.ndarray, np.ndarray] | None = None) -> FaceModel:
     """Build the procedural anatomical face model.
 
     Parameters
@@ -106,10 +110,13 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
     seed : 0 gives the canonical head; other seeds perturb the proportions reproducibly.
     progress : optional callable taking a one-line status message.
     threads : fTetWild threads (0 = all cores).
+    mesh : optional ``(X (n, 3) float64, tets (m, 4) int32)`` tet mesh of the flesh to reuse
+        (e.g. from an earlier model of the same seed and resolution) instead of running fTetWild.
 
     The anatomy, fields and surfaces are deterministic for a given seed and resolution; the
-    tetrahedralisation (fTetWild) is not bit-reproducible between runs, and every array
-    derived from a given tet mesh is.
+    tetrahedralisation (fTetWild) is not bit-reproducible between runs (wildmeshing/fTetWild#72),
+    and every array derived from a given tet mesh is: rebuilding with ``mesh`` taken from a
+    model reproduces that model exactly.
     """
     if resolution not in RESOLUTIONS:
         raise FacesimError(f"resolution: expected one of {', '.join(RESOLUTIONS)}, got {resolution!r}")
@@ -123,16 +130,20 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
         timings[key] = round(t - t0, 2)
         t0 = t
 
-    h, edge_face, edge_back = RESOLUTIONS[resolution]
+    h, edge_face, edge_back, epsilon = RESOLUTIONS[resolution]
     sub = phantom.subject_from_seed(int(seed))
     fields = phantom.build_fields(sub, h=h, progress=lambda m: say(f"fields: {m}"))
     lap("fields_s")
     say("flesh surface")
     v, f = meshing.isosurface(fields.flesh, fields.grid, smooth_mm=0.5)
     lap("surface_s")
-    say(f"tetrahedralising with fTetWild (edge {edge_face} mm in the face, {edge_back} mm elsewhere)")
     sim_fn = simulated_region(sub)
-    X, T = meshing.tetrahedralise(v, f, edge_face, edge_back, sim_fn, threads=threads)
+    if mesh is None:
+        say(f"tetrahedralising with fTetWild (edge {edge_face} mm in the face, {edge_back} mm elsewhere)")
+        X, T = meshing.tetrahedralise(v, f, edge_face, edge_back, sim_fn, epsilon=epsilon, threads=threads)
+    else:
+        say("reusing the given tet mesh")
+        X, T = meshing.check_tet_mesh(*mesh)
     lap("tetwild_s")
     say(f"labelling {len(T)} tets")
     L = meshing.label_mesh(X, T, fields, sim_fn)
@@ -182,7 +193,8 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
         "grid_mm": h,
         "edge_face_mm": edge_face,
         "edge_back_mm": edge_back,
-        "mesher": "pytetwild (fTetWild)",
+        "envelope": epsilon,
+        "mesher": "pytetwild (fTetWild)" if mesh is None else "reused tet mesh",
         "timings": timings,
         "quality": quality,
         "soft_tissue_depths": depths,

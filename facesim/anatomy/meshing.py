@@ -73,7 +73,65 @@ def tetrahedralise(vertices, faces, edge_face: float, edge_back: float, simulate
     vol = signed_volumes(X, T)
     flip = vol < 0
     T[flip] = T[flip][:, [0, 2, 1, 3]]
+    return split_pinched_nodes(X, T)
+
+
+def check_tet_mesh(X, T) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a given tet mesh: ``X (n, 3)`` finite, ``T (m, 4)`` indices in range, positive volumes."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    T = np.ascontiguousarray(T, dtype=np.int32)
+    if X.ndim != 2 or X.shape[1] != 3 or not np.isfinite(X).all():
+        raise FacesimError(f"mesh: expected finite node positions of shape (n, 3), got {X.shape}")
+    if T.ndim != 2 or T.shape[1] != 4 or len(T) == 0 or T.min() < 0 or T.max() >= len(X):
+        raise FacesimError(f"mesh: expected tets of shape (m, 4) indexing {len(X)} nodes")
+    if np.any(signed_volumes(X, T) <= 0):
+        raise FacesimError("mesh: expected positively oriented tets with non-zero volume")
     return X, T
+
+
+def split_pinched_nodes(X: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Give every node one copy per face-connected fan of its tets.
+
+    Where the envelope lets fTetWild close a thin gap (the lip slit at the mouth corners), two
+    parts of the flesh can touch at a single node or edge: a non-manifold pinch that would glue
+    the lips together. Tets around a node that share a face containing it stay on one copy;
+    tets that only meet at the node (or an edge through it) get separate copies.
+    Returns ``(X (n', 3), T (m, 4))`` with ``n' >= n``; unchanged when nothing is pinched.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(T)
+    local = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
+    # incidence id of (tet t, local corner k) is 4 t + k
+    faces = T[:, local].reshape(-1, 3)
+    corners = (4 * np.arange(m)[:, None, None] + local[None]).reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    order = np.lexsort(key.T[::-1])
+    ks = key[order]
+    same = np.all(ks[1:] == ks[:-1], axis=1)
+    f1, f2 = order[:-1][same], order[1:][same]
+    # match the corners of the two copies of each interior face by node id
+    rows, cols = [], []
+    for a in range(3):
+        node = faces[f1, a]
+        for b in range(3):
+            hit = faces[f2, b] == node
+            rows.append(corners[f1, a][hit])
+            cols.append(corners[f2, b][hit])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    g = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(4 * m, 4 * m))
+    n_comp, comp = connected_components(g, directed=False)
+    node_of = T.ravel()
+    if n_comp == len(np.unique(node_of)):
+        return X, T
+    # one new node per component, numbered in order of the original node (then component)
+    first = np.full(n_comp, -1, np.int64)
+    first[comp[::-1]] = node_of[::-1]
+    order = np.lexsort((np.arange(n_comp), first))
+    new_id = np.empty(n_comp, np.int64)
+    new_id[order] = np.arange(n_comp)
+    return X[first[order]].copy(), new_id[comp].reshape(T.shape).astype(np.int32)
 
 
 def signed_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -155,10 +213,11 @@ def label_mesh(X, T, fields: HeadFields, simulated_fn) -> LabelledMesh:
     faces, _ = boundary_faces(T)
     lab = label_boundary(X, faces, fields)
     comp = face_components(faces)
-    # the skin: outer skin and the mouth lining it folds into, in the component holding most skin
+    # the skin: outer skin, the mouth lining it folds into and the flat neck cut that closes it,
+    # in the component holding most skin
     counts = np.bincount(comp[lab == SKIN], minlength=comp.max() + 1)
     outer = int(np.argmax(counts))
-    skin = faces[(comp == outer) & ((lab == SKIN) | (lab == MOUTH))]
+    skin = faces[(comp == outer) & ((lab == SKIN) | (lab == MOUTH) | (lab == CUT))]
     simulated = simulated_fn(X[T].mean(axis=1))
     jaw_nodes = np.unique(faces[lab == JAW])
     # flesh on the mandible is always simulated: the attached region moves with the cranium only
@@ -168,7 +227,7 @@ def label_mesh(X, T, fields: HeadFields, simulated_fn) -> LabelledMesh:
     cran = np.zeros(len(X), bool)
     cran[np.unique(faces[lab == CRANIUM])] = True
     cran[np.unique(T[~simulated])] = True
-    cran[np.unique(faces[lab == CUT])] = True   # the cut through the head is held by the cranium
+    cran[np.unique(faces[lab == CUT])] = True   # the neck cut is held by the cranium
     cran[jaw_nodes] = False
     return LabelledMesh(X=X, tets=T, faces=faces, face_label=lab, skin=skin,
                         cranium_nodes=np.flatnonzero(cran).astype(np.int32),

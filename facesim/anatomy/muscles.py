@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from facesim._kernels.embed import ribbon_inside
@@ -33,6 +34,7 @@ class MuscleSpec:
     sigma_max: float = 0.15
     closed: bool = False
     midline: bool = False   # a single midline-crossing muscle per side is still mirrored
+    ring: bool = False      # a sphincter drawn in the front view: laid along z, see ``lay_path``
 
 
 def _arc(centre, a, b, t0, t1, z_drop=0.0, n=9):
@@ -49,9 +51,10 @@ def _arc(centre, a, b, t0, t1, z_drop=0.0, n=9):
 CATALOGUE: tuple[MuscleSpec, ...] = (
     MuscleSpec("frontalis", ((30, 100, 40), (30, 80, 70), (28, 55, 84)), (3.5, 3.0), (14, 12), (1.8, 1.8), 0.10),
     MuscleSpec("corrugator_supercilii", ((10, 42, 82), (20, 46, 84), (30, 48, 82)), (6.0, 4.0), (3.5, 3.0), (2.0, 2.0), 0.12),
-    MuscleSpec("procerus", ((5, 22, 92), (5, 34, 88), (6, 48, 86)), (3.0, 3.5), (4.0, 4.5), (1.8, 1.8), 0.10),
+    # a slip from the nasal bones to the glabella skin, 6-7 mm wide; with its twin a strip ~15 mm wide
+    MuscleSpec("procerus", ((4, 25, 92), (4, 35, 90), (4, 45, 88)), (3.0, 3.5), (3.0, 3.5), (1.5, 1.5), 0.10),
     MuscleSpec("orbicularis_oculi", _arc((32, 27, 70), 24, 20, 0, 360, z_drop=8, n=25), (2.5, 2.5), (6.0, 6.0),
-               (1.6, 1.6), 0.10, closed=True),
+               (1.6, 1.6), 0.10, closed=True, ring=True),
     MuscleSpec("levator_labii_superioris_alaeque_nasi", ((14, 30, 84), (15, 10, 94), (16, -14, 100)), (4.0, 3.5),
                (3.0, 3.5), (2.0, 2.0), 0.15),
     MuscleSpec("levator_labii_superioris", ((28, 10, 80), (22, -8, 90), (15, -28, 96)), (5.0, 4.0), (5.0, 4.0),
@@ -66,10 +69,10 @@ CATALOGUE: tuple[MuscleSpec, ...] = (
     MuscleSpec("depressor_labii_inferioris", ((18, -74, 76), (15, -60, 86), (11, -48, 94)), (5.0, 4.5), (5.5, 4.5),
                (2.2, 2.2), 0.15),
     MuscleSpec("mentalis", ((6, -58, 82), (6, -70, 88), (6, -80, 90)), (6.0, 4.0), (4.5, 4.5), (2.5, 2.5), 0.12),
-    MuscleSpec("orbicularis_oris_upper", _arc((0, -40, 96), 27, 11, 0, 90, z_drop=8), (4.5, 4.5), (3.5, 4.0), (3.0, 3.0),
-               0.20),
-    MuscleSpec("orbicularis_oris_lower", _arc((0, -40, 95), 26, 12, 0, -90, z_drop=8), (4.5, 4.5), (3.5, 4.0), (3.0, 3.0),
-               0.20),
+    MuscleSpec("orbicularis_oris_upper", _arc((0, -40, 96), 26, 12, 0, 90, z_drop=8), (4.5, 4.5), (3.5, 4.0), (3.0, 3.0),
+               0.20, ring=True),
+    MuscleSpec("orbicularis_oris_lower", _arc((0, -40, 96), 26, 12, 0, -90, z_drop=8), (4.5, 4.5), (3.5, 4.0), (3.0, 3.0),
+               0.20, ring=True),
 )
 
 
@@ -79,9 +82,14 @@ def muscle_names() -> list[str]:
 
 
 def lay_path(path: np.ndarray, depth: tuple[float, float], skin: np.ndarray, grid: sdf.Grid,
-             n: int = 24, closed: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             n: int = 24, closed: bool = False, along_z: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Resample ``path (k, 3)`` to ``n`` points and push each to its depth below the skin.
 
+    By default each point moves along the skin normal. With ``along_z`` only its z changes: it
+    goes to the first point at that depth seen from the front, so the path keeps its (x, y)
+    front-view shape. Rings need this: the face curves back at the mouth corners and the outer
+    canthi, and a push along the normal there slides the ends medially (the lip ring's corners
+    from x = 26 to x = 18 mm), which bends the fibres of the flattened ring off circumferential.
     Returns ``(points (n, 3), tangents (n, 3), skin normals (n, 3))`` in mm.
     """
     path = np.asarray(path, float)
@@ -90,11 +98,14 @@ def lay_path(path: np.ndarray, depth: tuple[float, float], skin: np.ndarray, gri
     u = np.linspace(0, s[-1], n, endpoint=not closed) if not closed else np.linspace(0, s[-1], n + 1)[:-1]
     p = np.stack([np.interp(u, s, path[:, i]) for i in range(3)], 1)
     d = np.interp(u / max(s[-1], 1e-9), [0, 1], depth)
-    for _ in range(6):
-        val = grid.sample(skin, p)
-        g = grid.gradient_at(skin, p)
-        nrm = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
-        p = p - (val + d)[:, None] * nrm
+    if along_z:
+        p = _sink_along_z(p, d, skin, grid)
+    else:
+        for _ in range(6):
+            val = grid.sample(skin, p)
+            g = grid.gradient_at(skin, p)
+            nrm = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
+            p = p - (val + d)[:, None] * nrm
     g = grid.gradient_at(skin, p)
     nrm = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
     if closed:
@@ -103,6 +114,65 @@ def lay_path(path: np.ndarray, depth: tuple[float, float], skin: np.ndarray, gri
         tang = np.gradient(p, axis=0)
     tang /= np.linalg.norm(tang, axis=1, keepdims=True)
     return p, tang, nrm
+
+
+def _inside_ribbon(P: np.ndarray, pts: np.ndarray, tang: np.ndarray, nrm: np.ndarray, W: np.ndarray,
+                   H: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Which of the points ``P (q, 3)`` lie in the ribbon laid along ``pts (k, 3)``, and its fibre there.
+
+    The ribbon is the union of one capsule per segment, each tested by ``ribbon_inside`` as a
+    two-point open ribbon with elliptic caps of length H at both ends. Handing the kernel the
+    whole polyline instead is wrong: where the nearest point of a segment is clamped to an
+    *interior* vertex the kernel drops the offset along the tangent, so every vertex grows a ray
+    along its tangent (and the ends of an open path run on past their caps) until the candidate
+    box stops it. Where capsules overlap the fibre is that of the nearest segment.
+    Returns ``(inside (q,) bool, fibre (q, 3) unit tangents, zero outside)``.
+    """
+    k = len(pts)
+    inside = np.zeros(len(P), dtype=np.bool_)
+    fibre = np.zeros((len(P), 3))
+    best = np.full(len(P), np.inf)     # distance to the segment that set the fibre
+    # hundreds of small calls: waking the kernel's worker threads for each costs more than the
+    # work (4x slower on a busy 2-core machine). The setting is per calling thread; restored below.
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        for a in range(k if closed else k - 1):
+            ab = [a, (a + 1) % k]
+            # the capsule lies within max(W, H) of its segment (its frame tilts by the vertex tangents)
+            reach = 1.5 * max(W[ab].max(), H[ab].max()) + 1.0
+            lo, hi = pts[ab].min(0) - reach, pts[ab].max(0) + reach
+            sel = np.flatnonzero(np.all((P > lo) & (P < hi), axis=1))
+            seg = pts[ab[1]] - pts[a]
+            t = np.clip((P[sel] - pts[a]) @ seg / max(seg @ seg, 1e-18), 0.0, 1.0)
+            dist = np.linalg.norm(P[sel] - pts[a] - t[:, None] * seg, axis=1)
+            sel, dist = sel[dist < reach], dist[dist < reach]
+            ins = np.zeros(len(sel), dtype=np.bool_)
+            fib = np.zeros((len(sel), 3))
+            ribbon_inside(np.ascontiguousarray(P[sel]), pts[ab], tang[ab], nrm[ab], W[ab], H[ab], False, ins, fib)
+            win = ins & (dist < best[sel])
+            best[sel[win]] = dist[win]
+            inside[sel[win]] = True
+            fibre[sel[win]] = fib[win]
+    finally:
+        numba.set_num_threads(threads)
+    return inside, fibre
+
+
+def _sink_along_z(p: np.ndarray, d: np.ndarray, skin: np.ndarray, grid: sdf.Grid, reach: float = 40.0,
+                  step: float = 0.25) -> np.ndarray:
+    """Move each of ``p (n, 3)`` along z to the first point from the front where the skin distance
+    is ``-d (n,)``: march back from ``reach`` mm in front of it, then interpolate the crossing."""
+    z = p[:, 2:3] + reach - step * np.arange(int(2 * reach / step) + 1)       # (n, m), front to back
+    ray = np.stack(np.broadcast_arrays(p[:, :1], p[:, 1:2], z), axis=-1)        # (n, m, 3)
+    f = grid.sample(skin, ray.reshape(-1, 3)).reshape(z.shape) + d[:, None]    # < 0 deeper than d
+    j = np.argmax(f <= 0, axis=1)
+    if np.any(f[np.arange(len(p)), j] > 0) or np.any(j == 0):
+        raise ValueError("a ring point has no depth crossing within reach of its seed along z")
+    f0, f1 = f[np.arange(len(p)), j - 1], f[np.arange(len(p)), j]
+    out = p.copy()
+    out[:, 2] = z[np.arange(len(p)), j - 1] - step * f0 / (f0 - f1)
+    return out
 
 
 #: Barycentric sample points per tet (centroid, 4 near the vertices, 6 near the edge midpoints).
@@ -132,7 +202,7 @@ def embed_muscles(X: np.ndarray, tets: np.ndarray, skin: np.ndarray, grid: sdf.G
         for side in ("L", "R"):
             base = np.asarray(spec.path, float) * (1.0 if side == "L" else mirror)
             pts, tang, nrm = lay_path(scale(base), spec.depth, skin, grid, closed=spec.closed,
-                                      n=32 if spec.closed else 24)
+                                      n=32 if spec.closed else 24, along_z=spec.ring)
             k = len(pts)
             W = np.interp(np.linspace(0, 1, k), [0, 1], spec.width)
             H = np.interp(np.linspace(0, 1, k), [0, 1], spec.thickness)
@@ -140,10 +210,7 @@ def embed_muscles(X: np.ndarray, tets: np.ndarray, skin: np.ndarray, grid: sdf.G
             lo, hi = pts.min(0) - reach, pts.max(0) + reach
             cand = np.flatnonzero(np.all((centroid > lo) & (centroid < hi), axis=1))
             Pc = np.ascontiguousarray(P.reshape(len(tets), q, 3)[cand].reshape(-1, 3))
-            inside = np.zeros(len(Pc), dtype=np.bool_)
-            fib = np.zeros((len(Pc), 3))
-            ribbon_inside(Pc, np.ascontiguousarray(pts), np.ascontiguousarray(tang), np.ascontiguousarray(nrm),
-                          W, H, spec.closed, inside, fib)
+            inside, fib = _inside_ribbon(Pc, pts, tang, nrm, W, H, spec.closed)
             inside = inside.reshape(-1, q)
             frac = inside.mean(axis=1)
             f = fib.reshape(-1, q, 3) * inside[:, :, None]

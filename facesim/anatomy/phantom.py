@@ -119,11 +119,11 @@ class HeadFields:
     skin: np.ndarray         # outer skin (mouth not carved)
     cranium_skull: np.ndarray  # the skull alone, before the rigid core is grown (rendering, depths)
 
-    crop: np.ndarray = None  # the face region kept for simulation (negative inside)
+    crop: np.ndarray = None  # the flat cut through the neck (negative above it)
 
     @property
     def flesh(self) -> np.ndarray:
-        """Flesh region: inside the skin and the face crop, outside bone, eyes, mouth and joint voids."""
+        """Flesh region: inside the skin and above the neck cut, outside bone, eyes, mouth and joint voids."""
         f = np.maximum(self.skin, -self.cranium)
         if self.crop is not None:
             np.maximum(f, self.crop, out=f)
@@ -174,7 +174,7 @@ def cranium_field(g: sdf.Grid, sub: Subject, arches: DentalArches) -> np.ndarray
     d = sdf.smooth_intersect(d, base, 6.0)
     # skull base, pharynx and cervical column (rigid core the neck flesh hangs on)
     core = sdf.box(x, y, z, S([0, -10, -20]), S([27, 30, 26]), rounding=10.0)
-    core = np.minimum(core, sdf.capsule_chain(x, y, z, S([[0, -20, -28], [0, -75, -30], [0, -112, -32]]), 26.0))
+    core = np.minimum(core, sdf.capsule_chain(x, y, z, S([[0, -20, -28], [0, -60, -30], [0, -88, -31]]), 26.0))
     d = sdf.smooth_union(d, core, 8.0)
     # mastoids behind the condyles
     d = sdf.smooth_union(d, mirror_pair(sdf.ellipsoid, x, y, z, S([54, -6, -22]), S([9, 14, 10])), 5.0)
@@ -359,7 +359,8 @@ def skin_field(g: sdf.Grid, sub: Subject, bone_and_eyes_exact: np.ndarray) -> np
     neck = sdf.capsule_chain(x, y, z, S([[0, -40, -25], [0, -150, -38]]), 54.0)
     neck = np.maximum(neck, sdf.halfspace(x, y, z, S([0, 20, 0]), [0, 1, 0]))
     d = sdf.smooth_union(d, neck, 14.0)
-    d = sdf.smooth_intersect(d, sdf.halfspace(x, y, z, S([0, -128, 0]), [0, -1, 0]), 3.0)
+    # the neck runs on below the cut (NECK_CUT_Y) so the cut meets it at a clean right angle
+    d = sdf.smooth_intersect(d, sdf.halfspace(x, y, z, S([0, NECK_CUT_Y - 6.0, 0]), [0, -1, 0]), 3.0)
     d = ndimage.gaussian_filter(d, 1.5 / g.h)
     return d.astype(np.float32)
 
@@ -374,17 +375,22 @@ def soft_masses(g: sdf.Grid, sub: Subject) -> np.ndarray:
 
 #: Flesh deeper than this under the skin is part of the rigid cranium body (mm) ...
 CORE_DEPTH = 14.0
+#: Height of the flat cut through the neck stub (canonical mm).
+NECK_CUT_Y = -128.0
 #: ... unless it is within these distances of the mandible, the mouth, the eyes or the joints (mm).
 CORE_CLEARANCE = {"jaw": 12.0, "mouth": 8.0, "eyes": 4.0, "joint": 5.0}
 
 
-def deep_core(g: sdf.Grid, cranium, jaw, eyes, mouth, joint, skin) -> np.ndarray:
+def deep_core(g: sdf.Grid, cranium, jaw, eyes, mouth, joint, skin, cut_y: float) -> np.ndarray:
     """Cranium field grown into the deep interior of the head (pharynx, skull base, neck core).
 
     The simulated flesh is the layer under the skin, as in Sifakis et al. 2005: deeper tissue
     that facial expressions barely move is treated as part of the rigid cranium body.
     """
     deep = sdf.exact_sdf(skin < 0, g.h) < -CORE_DEPTH
+    # the core stops short of the neck cut, so the cut is a solid disc of flesh and the skin
+    # with that disc closes the head
+    deep &= np.broadcast_to(g.axes()[1] > cut_y + CORE_DEPTH, g.shape)
     for name, field in (("jaw", jaw), ("mouth", mouth), ("eyes", eyes), ("joint", joint)):
         deep &= sdf.exact_sdf(field < 0, g.h) > CORE_CLEARANCE[name]
     occ = (cranium < 0) | deep
@@ -394,16 +400,15 @@ def deep_core(g: sdf.Grid, cranium, jaw, eyes, mouth, joint, skin) -> np.ndarray
 
 
 #: The simulated face region in canonical mm: in front of the ears, above the lower neck and
-#: below the upper forehead. The rest of the head is left out; the cut is attached to the cranium.
+#: below the upper forehead. The rest of the head (scalp, back of the head, lower neck) is
+#: meshed but not simulated: its nodes move with the cranium.
 FACE_REGION = {"z_min": -12.0, "y_min": -100.0, "y_max": 100.0}
 
 
-def face_crop(g: sdf.Grid, sub: Subject) -> np.ndarray:
-    x, y, z = g.axes()
-    r = FACE_REGION
-    c = np.maximum(float(r["z_min"] * sub.depth) - z, float(r["y_min"] * sub.height) - y)
-    c = np.maximum(c, y - float(r["y_max"] * sub.height))
-    return np.broadcast_to(c, g.shape).astype(np.float32)
+def neck_cut(g: sdf.Grid, sub: Subject) -> np.ndarray:
+    """Signed distance to the flat cut through the neck stub (negative above it)."""
+    y = g.axes()[1]
+    return np.broadcast_to(float(NECK_CUT_Y * sub.height) - y, g.shape).astype(np.float32)
 
 
 def build_fields(sub: Subject, h: float = 1.0, progress=None) -> HeadFields:
@@ -434,8 +439,8 @@ def build_fields(sub: Subject, h: float = 1.0, progress=None) -> HeadFields:
     skin = skin_field(g, sub, bone_eyes_exact)
     step("rigid core")
     skull = cranium
-    cranium = deep_core(g, cranium, jaw, eyes, mouth, joint, skin)
-    crop = face_crop(g, sub)
+    cranium = deep_core(g, cranium, jaw, eyes, mouth, joint, skin, NECK_CUT_Y * sub.height)
+    crop = neck_cut(g, sub)
     return HeadFields(grid=g, cranium=cranium, cranium_skull=skull, crop=crop, jaw=jaw, eyes=eyes, teeth_upper=t_up, teeth_lower=t_lo,
                       mouth=mouth, joint=joint, skin=skin)
 

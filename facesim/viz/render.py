@@ -199,6 +199,7 @@ def _set_camera(plotter, points: np.ndarray, view: str) -> None:
     distance = 3.0 * float(np.linalg.norm(hi - lo)) + 1.0
     plotter.camera_position = [tuple(centre + distance * direction), tuple(centre), tuple(up)]
     plotter.reset_camera()  # keeps the direction, fits the distance to what is drawn
+    plotter.camera.zoom(1.35)  # reset_camera fits the bounding sphere, which leaves wide margins
 
 
 def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
@@ -229,36 +230,57 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
             # translucent actors after the opaque ones, which is enough for one skin layer.
             plotter.add_mesh(_polydata(points, model.skin), color=SKIN_COLOUR, opacity=skin_opacity,
                              smooth_shading=True, specular=0.1)
+        entries = entries if legend else []
+        panel = _legend_layout(entries, (width, height))[2]
+        if panel:
+            plotter.window_size = (width - panel, height)
         _set_camera(plotter, points, view)
         image = plotter.screenshot(None, return_img=True)
     finally:
         plotter.close()
-    return _annotate(np.ascontiguousarray(image[..., :3]), entries if legend else [], title)
+    return _annotate(np.ascontiguousarray(image[..., :3]), entries, title, (width, height))
 
 
-def _annotate(image: np.ndarray, entries, title: str | None) -> np.ndarray:
-    """Draw the muscle legend (upper right) and the caption (lower left) onto an RGB image.
+def _legend_layout(entries, size):
+    """Font, line height and width of the legend panel drawn right of the picture (0 without legend)."""
+    from PIL import ImageDraw, ImageFont, Image
 
+    w, h = size
+    px = max(10, min(w, h) // 60)
+    font = ImageFont.load_default(size=px)
+    if not entries:
+        return font, px, 0
+    draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    labels = [name.replace("_", " ") for name, _ in entries]
+    text_w = max(draw.textlength(t, font=font) for t in labels)
+    # never more than a third of the picture: shrink the font for long legends on small pictures
+    while 4 * (px // 2) + px + text_w > 0.32 * w and px > 6:
+        px -= 1
+        font = ImageFont.load_default(size=px)
+        text_w = max(draw.textlength(t, font=font) for t in labels)
+    return font, px, int(4 * (px // 2) + px + text_w)
+
+
+def _annotate(image: np.ndarray, entries, title: str | None, size) -> np.ndarray:
+    """Add the muscle legend as a panel right of the rendered view, and the caption (lower left).
+
+    ``image`` is the 3D view, narrower than ``size`` by the legend panel; the result has ``size``.
     Drawn with PIL rather than VTK so that labels stay white and legible whatever the muscle
-    colour, and look the same at every picture size.
+    colour, look the same at every picture size, and never cover the face.
     """
-    if not entries and not title:
+    w, h = size
+    if not entries and not title and image.shape[1] == w:
         return image
     from PIL import Image, ImageDraw, ImageFont
 
-    h, w = image.shape[:2]
-    px = max(10, min(w, h) // 45)
-    font = ImageFont.load_default(size=px)
-    canvas = Image.fromarray(image).convert("RGBA")
-    overlay = Image.new("RGBA", canvas.size, (0, 0, 0, 0))
-    draw = ImageDraw.Draw(overlay)
+    font, px, panel = _legend_layout(entries, size)
+    canvas = Image.new("RGB", (w, h), BACKGROUND[0])
+    canvas.paste(Image.fromarray(image), (0, 0))
+    draw = ImageDraw.Draw(canvas)
     if entries:
         labels = [name.replace("_", " ") for name, _ in entries]
         line, pad, swatch = int(1.45 * px), px // 2, px
-        box_w = int(3 * pad + swatch + max(draw.textlength(t, font=font) for t in labels))
-        box_h = 2 * pad + line * len(labels)
-        x0, y0 = w - box_w - pad, pad
-        draw.rectangle([x0, y0, x0 + box_w, y0 + box_h], fill=(16, 18, 24, 170))
+        x0, y0 = w - panel, pad
         for k, (label, (_, colour)) in enumerate(zip(labels, entries)):
             y = y0 + pad + k * line
             draw.rectangle([x0 + pad, y + (line - swatch) // 2, x0 + pad + swatch, y + (line + swatch) // 2],
@@ -267,7 +289,7 @@ def _annotate(image: np.ndarray, entries, title: str | None) -> np.ndarray:
     if title:
         draw.text((px, h - px), title, font=ImageFont.load_default(size=int(1.4 * px)), fill=TEXT_COLOUR,
                   anchor="ls")
-    return np.asarray(Image.alpha_composite(canvas, overlay).convert("RGB"))
+    return np.asarray(canvas)
 
 
 def _save_png(image: np.ndarray, path) -> Path:

@@ -1,0 +1,329 @@
+"""Per-tet energy, gradient and Hessian loops of the flesh and muscle terms.
+
+Linear tets: ``F = [x1-x0, x2-x0, x3-x0] Bm`` with ``Bm = Dm^-1`` precomputed, shape-function
+gradients ``b[a] (3,)`` (``b0 = -(b1 + b2 + b3)``), rest volume ``V0``. Then
+``dE/dx_a = V0 P b_a`` and, for a rank-one tangent mode ``q`` (3, 3) with eigenvalue ``lam``,
+the element Hessian gains ``V0 lam (G^T q)(G^T q)^T`` with ``(G^T q)_(a,k) = (q b_a)_k``.
+
+Gradients: computed per element in parallel, summed serially (a few flops per entry).
+Hessians: elements of one colour share no node, so each colour is a parallel loop writing
+straight into the BSR blocks through the precomputed scatter map ``e2b (m, 4, 4)``
+(-1 where a block is not part of the system).
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from facesim._kernels import JIT_FLAGS
+from facesim._kernels.fibre import fibre_stress
+from facesim._kernels.mooney import mr_modes
+
+
+@njit(**JIT_FLAGS)
+def deformation_gradient(x, tet, Bm, F):
+    """F (3, 3) of one tet: ``x (n, 3)``, ``tet (4,)``, ``Bm (3, 3)``."""
+    for k in range(3):
+        d1 = x[tet[1], k] - x[tet[0], k]
+        d2 = x[tet[2], k] - x[tet[0], k]
+        d3 = x[tet[3], k] - x[tet[0], k]
+        for l in range(3):
+            F[k, l] = d1 * Bm[0, l] + d2 * Bm[1, l] + d3 * Bm[2, l]
+
+
+@njit(**JIT_FLAGS)
+def shape_gradients(Bm, b):
+    """b (4, 3): gradients of the four linear shape functions."""
+    for l in range(3):
+        b[1, l] = Bm[0, l]
+        b[2, l] = Bm[1, l]
+        b[3, l] = Bm[2, l]
+        b[0, l] = -(Bm[0, l] + Bm[1, l] + Bm[2, l])
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def rest_shape(X, tets, Bm, V0):
+    """Fill ``Bm (m, 3, 3)`` = Dm^-1 and signed rest volumes ``V0 (m,)``."""
+    for e in prange(tets.shape[0]):
+        D = np.empty((3, 3))
+        t = tets[e]
+        for k in range(3):
+            for j in range(3):
+                D[k, j] = X[t[j + 1], k] - X[t[0], k]
+        det = (D[0, 0] * (D[1, 1] * D[2, 2] - D[1, 2] * D[2, 1]) - D[0, 1] * (D[1, 0] * D[2, 2] - D[1, 2] * D[2, 0])
+               + D[0, 2] * (D[1, 0] * D[2, 1] - D[1, 1] * D[2, 0]))
+        V0[e] = det / 6.0
+        if det == 0.0:
+            for k in range(3):
+                for j in range(3):
+                    Bm[e, k, j] = 0.0
+            continue
+        inv = 1.0 / det
+        Bm[e, 0, 0] = (D[1, 1] * D[2, 2] - D[1, 2] * D[2, 1]) * inv
+        Bm[e, 0, 1] = (D[0, 2] * D[2, 1] - D[0, 1] * D[2, 2]) * inv
+        Bm[e, 0, 2] = (D[0, 1] * D[1, 2] - D[0, 2] * D[1, 1]) * inv
+        Bm[e, 1, 0] = (D[1, 2] * D[2, 0] - D[1, 0] * D[2, 2]) * inv
+        Bm[e, 1, 1] = (D[0, 0] * D[2, 2] - D[0, 2] * D[2, 0]) * inv
+        Bm[e, 1, 2] = (D[0, 2] * D[1, 0] - D[0, 0] * D[1, 2]) * inv
+        Bm[e, 2, 0] = (D[1, 0] * D[2, 1] - D[1, 1] * D[2, 0]) * inv
+        Bm[e, 2, 1] = (D[0, 1] * D[2, 0] - D[0, 0] * D[2, 1]) * inv
+        Bm[e, 2, 2] = (D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]) * inv
+
+
+# ---------------------------------------------------------------- Mooney-Rivlin flesh
+
+@njit(parallel=True, **JIT_FLAGS)
+def elastic_energy(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems):
+    """Sum of V0 psi over the tets listed in ``elems``."""
+    total = 0.0
+    for i in prange(elems.shape[0]):
+        e = elems[i]
+        F = np.empty((3, 3))
+        P = np.empty((3, 3))
+        lam = np.empty(9)
+        Q = np.empty((9, 3, 3))
+        deformation_gradient(x, tets[e], Bm[e], F)
+        total += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q)
+    return total
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems, ge):
+    """``ge (len(elems), 4, 3)``: dE_e/dx of each listed tet; returns the energy."""
+    total = 0.0
+    for i in prange(elems.shape[0]):
+        e = elems[i]
+        F = np.empty((3, 3))
+        P = np.empty((3, 3))
+        b = np.empty((4, 3))
+        lam = np.empty(9)
+        Q = np.empty((9, 3, 3))
+        deformation_gradient(x, tets[e], Bm[e], F)
+        total += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q)
+        shape_gradients(Bm[e], b)
+        for a in range(4):
+            for k in range(3):
+                ge[i, a, k] = V0[e] * (P[k, 0] * b[a, 0] + P[k, 1] * b[a, 1] + P[k, 2] * b[a, 2])
+    return total
+
+
+@njit(**JIT_FLAGS)
+def scatter_gradient(tets, elems, ge, g):
+    """Add per-element gradients ``ge (k, 4, 3)`` of tets ``elems`` into ``g (n, 3)``."""
+    for i in range(elems.shape[0]):
+        t = tets[elems[i]]
+        for a in range(4):
+            for k in range(3):
+                g[t[a], k] += ge[i, a, k]
+
+
+@njit(**JIT_FLAGS)
+def _add_block(data, e2b_e, K):
+    """Add the 12x12 element matrix ``K`` into the BSR ``data (nb, 3, 3)`` via ``e2b_e (4, 4)``."""
+    for a in range(4):
+        for c in range(4):
+            blk = e2b_e[a, c]
+            if blk < 0:
+                continue
+            for k in range(3):
+                for m in range(3):
+                    data[blk, k, m] += K[3 * a + k, 3 * c + m]
+
+
+@njit(**JIT_FLAGS)
+def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, K):
+    """12x12 Hessian of one tet into ``K`` (zeroed here)."""
+    F = np.empty((3, 3))
+    P = np.empty((3, 3))
+    b = np.empty((4, 3))
+    lam = np.empty(9)
+    Q = np.empty((9, 3, 3))
+    w = np.empty(12)
+    deformation_gradient(x, tet, Bm, F)
+    mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q)
+    shape_gradients(Bm, b)
+    for r in range(12):
+        for c in range(12):
+            K[r, c] = 0.0
+    for m in range(9):
+        lm = max(lam[m], 0.0) if project else lam[m]
+        if lm == 0.0:
+            continue
+        for a in range(4):
+            for k in range(3):
+                w[3 * a + k] = Q[m, k, 0] * b[a, 0] + Q[m, k, 1] * b[a, 1] + Q[m, k, 2] * b[a, 2]
+        s = V0 * lm
+        for r in range(12):
+            wr = s * w[r]
+            for c in range(12):
+                K[r, c] += wr * w[c]
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def elastic_assemble(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, color_ptr, color_elems, e2b, data):
+    """Add the Hessians of the coloured tets into BSR ``data``; one parallel loop per colour."""
+    for col in range(color_ptr.shape[0] - 1):
+        lo = color_ptr[col]
+        for i in prange(color_ptr[col + 1] - lo):
+            e = color_elems[lo + i]
+            K = np.empty((12, 12))
+            elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, K)
+            _add_block(data, e2b[e], K)
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def elastic_element_hessians(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, elems, Ke):
+    """``Ke (k, 12, 12)``: element Hessians of the listed tets (for tests and small problems)."""
+    for i in prange(elems.shape[0]):
+        e = elems[i]
+        elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, Ke[i])
+
+
+# ---------------------------------------------------------------- muscle fibres
+
+@njit(**JIT_FLAGS)
+def _fibre_entry(x, tet, Bm, d, F, b, fd):
+    """Fibre stretch of one entry; fills F, b and ``fd = F d``; returns lam and ``w_a = b_a . d``."""
+    deformation_gradient(x, tet, Bm, F)
+    shape_gradients(Bm, b)
+    for k in range(3):
+        fd[k] = F[k, 0] * d[0] + F[k, 1] * d[1] + F[k, 2] * d[2]
+    return math.sqrt(fd[0] * fd[0] + fd[1] * fd[1] + fd[2] * fd[2])
+
+
+@njit(**JIT_FLAGS)
+def _entry_scales(j, ent_muscle, ent_fraction, sigma, gain, a, active_only):
+    m = ent_muscle[j]
+    base = sigma[m] * ent_fraction[j]
+    if active_only:
+        return 0.0, base * gain[m]
+    return base, base * gain[m] * a[m]
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def fibre_element_gradients(x, tets, Bm, V0, ent_tet, ent_muscle, ent_fraction, ent_fibre, sigma, gain, a,
+                            active_only, ge):
+    """Per-entry gradients ``ge (k, 4, 3)``; returns the fibre energy. With ``active_only`` the
+    term is sigma rho g F_L (activation 1, no passive part): the force columns g_m."""
+    total = 0.0
+    for j in prange(ent_tet.shape[0]):
+        e = ent_tet[j]
+        F = np.empty((3, 3))
+        b = np.empty((4, 3))
+        fd = np.empty(3)
+        lam = _fibre_entry(x, tets[e], Bm[e], ent_fibre[j], F, b, fd)
+        sp, sa = _entry_scales(j, ent_muscle, ent_fraction, sigma, gain, a, active_only)
+        psi, T, dT = fibre_stress(lam, sp, sa)
+        total += V0[e] * psi
+        c = V0[e] * T / lam if lam > 0.0 else 0.0
+        d = ent_fibre[j]
+        for q in range(4):
+            wq = b[q, 0] * d[0] + b[q, 1] * d[1] + b[q, 2] * d[2]
+            for k in range(3):
+                ge[j, q, k] = c * fd[k] * wq
+    return total
+
+
+@njit(**JIT_FLAGS)
+def fibre_element_hessian(x, tet, Bm, V0, d, sp, sa, project, K):
+    """12x12 Hessian of one fibre entry into ``K`` (zeroed here): (w w^T) (x) M with
+    M = (T/lam) I + (T' - T/lam) f f^T."""
+    F = np.empty((3, 3))
+    b = np.empty((4, 3))
+    fd = np.empty(3)
+    w = np.empty(4)
+    lam = _fibre_entry(x, tet, Bm, d, F, b, fd)
+    psi, T, dT = fibre_stress(lam, sp, sa)
+    for r in range(12):
+        for c in range(12):
+            K[r, c] = 0.0
+    if lam <= 0.0:
+        return
+    t_lam = T / lam
+    if project:
+        t_lam_p = max(t_lam, 0.0)
+        dT_p = max(dT, 0.0)
+    else:
+        t_lam_p = t_lam
+        dT_p = dT
+    M = np.empty((3, 3))
+    for k in range(3):
+        for m in range(3):
+            M[k, m] = (dT_p - t_lam_p) * fd[k] * fd[m] / (lam * lam)
+        M[k, k] += t_lam_p
+    for q in range(4):
+        w[q] = b[q, 0] * d[0] + b[q, 1] * d[1] + b[q, 2] * d[2]
+    for p in range(4):
+        for q in range(4):
+            s = V0 * w[p] * w[q]
+            for k in range(3):
+                for m in range(3):
+                    K[3 * p + k, 3 * q + m] = s * M[k, m]
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def fibre_assemble(x, tets, Bm, V0, ent_ptr, ent_fibre, ent_muscle, ent_fraction, sigma, gain, a, project,
+                   color_ptr, color_elems, e2b, data):
+    """Add the fibre Hessians into BSR ``data``: entries grouped by tet (``ent_ptr``, CSR over tets),
+    tets coloured as for the flesh."""
+    for col in range(color_ptr.shape[0] - 1):
+        lo = color_ptr[col]
+        for i in prange(color_ptr[col + 1] - lo):
+            e = color_elems[lo + i]
+            if ent_ptr[e] == ent_ptr[e + 1]:
+                continue
+            K = np.empty((12, 12))
+            Ksum = np.zeros((12, 12))
+            for j in range(ent_ptr[e], ent_ptr[e + 1]):
+                sp, sa = _entry_scales(j, ent_muscle, ent_fraction, sigma, gain, a, False)
+                fibre_element_hessian(x, tets[e], Bm[e], V0[e], ent_fibre[j], sp, sa, project, K)
+                for r in range(12):
+                    for c in range(12):
+                        Ksum[r, c] += K[r, c]
+            _add_block(data, e2b[e], Ksum)
+
+
+# ---------------------------------------------------------------- step limiting
+
+@njit(**JIT_FLAGS)
+def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def max_inversion_free_step(x, dx, tets, elems, samples):
+    """Largest ``alpha`` in (0, 1] such that no listed tet with positive volume at ``x`` reaches
+    zero volume along ``x + alpha dx`` (first sign change of the cubic det(Ds + alpha dDs),
+    found by sampling ``samples`` points and bisecting). Returns 1.0 when nothing inverts."""
+    out = np.ones(elems.shape[0])
+    for i in prange(elems.shape[0]):
+        t = tets[elems[i]]
+        A = np.empty((3, 3))
+        B = np.empty((3, 3))
+        for k in range(3):
+            for j in range(3):
+                A[k, j] = x[t[j + 1], k] - x[t[0], k]
+                B[k, j] = dx[t[j + 1], k] - dx[t[0], k]
+        d0 = _det3(A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2], A[2, 0], A[2, 1], A[2, 2])
+        if d0 <= 0.0:
+            continue
+        lo = 0.0
+        for s in range(1, samples + 1):
+            al = s / samples
+            C = A + al * B
+            d = _det3(C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2], C[2, 0], C[2, 1], C[2, 2])
+            if d <= 0.0:
+                hi = al
+                for _ in range(40):
+                    mid = 0.5 * (lo + hi)
+                    C = A + mid * B
+                    dm = _det3(C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2], C[2, 0], C[2, 1], C[2, 2])
+                    if dm > 0.0:
+                        lo = mid
+                    else:
+                        hi = mid
+                out[i] = lo
+                break
+            lo = al
+    return out.min() if out.shape[0] else 1.0

@@ -1,0 +1,218 @@
+"""Invertible Mooney-Rivlin flesh in principal stretches (PHYSICS.md section 1).
+
+    psi = c10 (I1_bar - 3) + c01 (I2_bar - 3) + psi_vol(J),
+    psi_vol = (kappa/2) (ln J)^2  (``vol == 0``)  or  (kappa/2) (J - 1)^2  (``vol == 1``)
+
+In the signed singular values s of F the isochoric invariants are sums of monomials,
+I1_bar = sum_i s_i^(4/3) s_j^(-2/3) s_k^(-2/3) and I2_bar = sum_k s_i^(2/3) s_j^(2/3) s_k^(-4/3),
+so derivatives of any order are closed forms. Inversion (Teran et al. 2005): singular values
+below ``eps`` are clamped, and psi is continued below the clamp to first order,
+
+    psi~(s) = psi(s^) + sum_{c clamped} psi_c(s^) (s_c - eps),   s^ = max(s, eps),
+
+which is C1, keeps energy, force and tangent consistent (the line search sees the energy the
+forces derive from), and pushes inverted elements back with a bounded force. Its exact Hessian
+needs the third derivatives of psi at the clamp, which the monomial form gives for free.
+
+The Hessian in F is assembled from its eigen-system in the SVD frame (Teran 2005; Smith et al.
+2019): three modes from the 3x3 block d2psi/ds2 and, per pair (i, j), a symmetric and an
+antisymmetric mode with eigenvalues (psi_i - psi_j)/(s_i - s_j) and (psi_i + psi_j)/(s_i + s_j).
+Projection to PSD clamps those nine eigenvalues at zero.
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from facesim._kernels import JIT_FLAGS
+from facesim._kernels.svd3 import _sym_eig3, svd3
+
+#: |s_i - s_j| (relative) below which the divided difference is replaced by its limit
+_DIVIDED_TOL = 1e-7
+
+# exponents of the six isochoric monomials: rows 0-2 belong to I1_bar, rows 3-5 to I2_bar
+_P = np.array([[4.0, -2.0, -2.0], [-2.0, 4.0, -2.0], [-2.0, -2.0, 4.0],
+               [-4.0, 2.0, 2.0], [2.0, -4.0, 2.0], [2.0, 2.0, -4.0]]) / 3.0
+
+
+@njit(**JIT_FLAGS)
+def psi_derivatives(s, c10, c01, kappa, vol, g, H, T):
+    """psi at positive ``s`` (3,), with gradient ``g`` (3,), Hessian ``H`` (3, 3) and third
+    derivatives ``T`` (3, 3, 3) written in place."""
+    psi = -3.0 * (c10 + c01)
+    for i in range(3):
+        g[i] = 0.0
+        for j in range(3):
+            H[i, j] = 0.0
+            for k in range(3):
+                T[i, j, k] = 0.0
+    inv = np.empty(3)
+    for i in range(3):
+        inv[i] = 1.0 / s[i]
+    for r in range(6):
+        c = c10 if r < 3 else c01
+        p = _P[r]
+        m = c * s[0] ** p[0] * s[1] ** p[1] * s[2] ** p[2]
+        psi += m
+        for i in range(3):
+            g[i] += p[i] * m * inv[i]
+            for j in range(3):
+                pij = p[i] * (p[j] - (1.0 if i == j else 0.0))
+                H[i, j] += pij * m * inv[i] * inv[j]
+                for k in range(3):
+                    e = p[k] - (1.0 if i == k else 0.0) - (1.0 if j == k else 0.0)
+                    T[i, j, k] += pij * e * m * inv[i] * inv[j] * inv[k]
+    if vol == 0:
+        L = math.log(s[0]) + math.log(s[1]) + math.log(s[2])
+        psi += 0.5 * kappa * L * L
+        for i in range(3):
+            g[i] += kappa * L * inv[i]
+            for j in range(3):
+                Lij = -inv[i] * inv[i] if i == j else 0.0
+                H[i, j] += kappa * (inv[i] * inv[j] + L * Lij)
+                for k in range(3):
+                    Lik = -inv[i] * inv[i] if i == k else 0.0
+                    Ljk = -inv[j] * inv[j] if j == k else 0.0
+                    Lijk = 2.0 * inv[i] ** 3 if (i == j and j == k) else 0.0
+                    T[i, j, k] += kappa * (Lik * inv[j] + inv[i] * Ljk + inv[k] * Lij + L * Lijk)
+    else:
+        J = s[0] * s[1] * s[2]
+        psi += 0.5 * kappa * (J - 1.0) ** 2
+        for i in range(3):
+            Ji = J * inv[i]
+            g[i] += kappa * (J - 1.0) * Ji
+            for j in range(3):
+                Jj = J * inv[j]
+                Jij = 0.0 if i == j else J * inv[i] * inv[j]
+                H[i, j] += kappa * (Ji * Jj + (J - 1.0) * Jij)
+                for k in range(3):
+                    Jk = J * inv[k]
+                    Jik = 0.0 if i == k else J * inv[i] * inv[k]
+                    Jjk = 0.0 if j == k else J * inv[j] * inv[k]
+                    Jijk = J * inv[0] * inv[1] * inv[2] if (i != j and j != k and i != k) else 0.0
+                    T[i, j, k] += kappa * (Jik * Jj + Ji * Jjk + Jk * Jij + (J - 1.0) * Jijk)
+    return psi
+
+
+@njit(**JIT_FLAGS)
+def psi_extended(s, c10, c01, kappa, vol, eps, g, H):
+    """The clamped-and-continued energy psi~ at signed ``s`` (3,); gradient ``g`` and Hessian ``H``
+    in the singular values written in place."""
+    sh = np.empty(3)
+    clamped = np.zeros(3, dtype=np.bool_)
+    for i in range(3):
+        clamped[i] = s[i] < eps
+        sh[i] = eps if clamped[i] else s[i]
+    g0 = np.empty(3)
+    H0 = np.empty((3, 3))
+    T0 = np.empty((3, 3, 3))
+    psi = psi_derivatives(sh, c10, c01, kappa, vol, g0, H0, T0)
+    for i in range(3):
+        g[i] = g0[i]
+        for j in range(3):
+            H[i, j] = H0[i, j]
+    for c in range(3):
+        if not clamped[c]:
+            continue
+        d = s[c] - eps
+        psi += g0[c] * d
+        for i in range(3):
+            if clamped[i]:
+                continue
+            g[i] += H0[c, i] * d
+            for j in range(3):
+                if not clamped[j]:
+                    H[i, j] += T0[c, i, j] * d
+    for i in range(3):
+        for j in range(3):
+            if clamped[i] and clamped[j]:
+                H[i, j] = 0.0
+    return psi
+
+
+@njit(**JIT_FLAGS)
+def _pair_eigenvalues(si, sj, gi, gj, Hii, Hij, Hjj):
+    """Eigenvalues of the (i, j) off-diagonal block: symmetric mode, antisymmetric mode."""
+    d = si - sj
+    if abs(d) > _DIVIDED_TOL * max(1.0, abs(si) + abs(sj)):
+        lam_sym = (gi - gj) / d
+    else:
+        lam_sym = 0.5 * (Hii + Hjj) - Hij
+    t = si + sj
+    if abs(t) > _DIVIDED_TOL * max(1.0, abs(si) + abs(sj)):
+        lam_anti = (gi + gj) / t
+    else:
+        lam_anti = 0.5 * (Hii + Hjj) + Hij
+    return lam_sym, lam_anti
+
+
+@njit(**JIT_FLAGS)
+def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q):
+    """Energy density at ``F`` (3, 3); first Piola stress into ``P`` (3, 3); the nine eigenvalues
+    of dP/dF into ``lam`` (9,) and their unit eigenvectors (as 3x3 matrices) into ``Q`` (9, 3, 3)."""
+    U = np.empty((3, 3))
+    V = np.empty((3, 3))
+    s = np.empty(3)
+    svd3(F, U, s, V)
+    g = np.empty(3)
+    H = np.empty((3, 3))
+    psi = psi_extended(s, c10, c01, kappa, vol, eps, g, H)
+    for k in range(3):
+        for l in range(3):
+            P[k, l] = U[k, 0] * g[0] * V[l, 0] + U[k, 1] * g[1] * V[l, 1] + U[k, 2] * g[2] * V[l, 2]
+    # diagonal block
+    A = H.copy()
+    E = np.empty((3, 3))
+    w = np.empty(3)
+    _sym_eig3(A, E, w)
+    for e in range(3):
+        lam[e] = w[e]
+        for k in range(3):
+            for l in range(3):
+                Q[e, k, l] = U[k, 0] * E[0, e] * V[l, 0] + U[k, 1] * E[1, e] * V[l, 1] + U[k, 2] * E[2, e] * V[l, 2]
+    r2 = 1.0 / math.sqrt(2.0)
+    e = 3
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        ls, la = _pair_eigenvalues(s[i], s[j], g[i], g[j], H[i, i], H[i, j], H[j, j])
+        lam[e] = ls
+        lam[e + 1] = la
+        for k in range(3):
+            for l in range(3):
+                a = U[k, i] * V[l, j]
+                b = U[k, j] * V[l, i]
+                Q[e, k, l] = r2 * (a + b)
+                Q[e + 1, k, l] = r2 * (a - b)
+        e += 2
+    return psi
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def mr_density_batch(F, c10, c01, kappa, vol, eps, psi, P):
+    """Energy density ``psi`` (k,) and first Piola stress ``P`` (k, 3, 3) for ``F`` (k, 3, 3);
+    material parameters are (k,) arrays."""
+    for e in prange(F.shape[0]):
+        lam = np.empty(9)
+        Q = np.empty((9, 3, 3))
+        psi[e] = mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P[e], lam, Q)
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def mr_tangent_batch(F, c10, c01, kappa, vol, eps, project, D):
+    """dP/dF as ``D`` (k, 9, 9) (row-major vec of P and F), optionally PSD-projected."""
+    for e in prange(F.shape[0]):
+        lam = np.empty(9)
+        Q = np.empty((9, 3, 3))
+        P = np.empty((3, 3))
+        mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P, lam, Q)
+        for r in range(9):
+            for c in range(9):
+                D[e, r, c] = 0.0
+        for m in range(9):
+            lm = max(lam[m], 0.0) if project else lam[m]
+            if lm == 0.0:
+                continue
+            for r in range(9):
+                qr = Q[m, r // 3, r % 3] * lm
+                for c in range(9):
+                    D[e, r, c] += qr * Q[m, c // 3, c % 3]

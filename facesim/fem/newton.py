@@ -1,0 +1,176 @@
+"""Newton's method on a sum of energy terms over a :class:`DofSystem`.
+
+Each step solves ``H du = -g`` with the PSD-projected Hessian (so CG applies), limits the step
+so no valid element reaches zero volume, and backtracks on the total energy (Armijo).
+Convergence: ``|g| <= rtol * force_scale + atol`` on the free components, where
+``force_scale`` is the caller's reference force (the equilibrium solver passes the residual of
+the cold start, so "relative" means relative to what the load does to the rest shape).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facesim._kernels.elements import max_inversion_free_step
+from facesim.errors import FacesimError
+from facesim.fem.linear import SOLVERS, make_linear_solver
+from facesim.fem.system import DofSystem
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Options of the nonlinear solve (forces in N, lengths in mm).
+
+    rtol : relative force residual to reach; atol : absolute floor (N).
+    max_iterations : Newton steps before giving up (the result is flagged, not raised).
+    linear_solver : ``"amg"`` (pyamg + CG, default) or ``"direct"`` (SuperLU).
+    linear_rtol : CG tolerance cap; each step uses ``min(linear_rtol, rel residual)`` (inexact
+        Newton with a forcing term that keeps quadratic convergence).
+    project : PSD-project the element Hessians (needed for CG; the true tangent is indefinite
+        on the descending limb of the force-length curve and for inverted elements).
+    step_fraction : fraction of the largest inversion-free step tried first.
+    """
+
+    rtol: float = 1e-6
+    atol: float = 1e-10
+    max_iterations: int = 60
+    linear_solver: str = "amg"
+    linear_rtol: float = 1e-2
+    project: bool = True
+    step_fraction: float = 0.9
+    armijo: float = 1e-4
+    max_backtracks: int = 30
+
+    def __post_init__(self):
+        if self.linear_solver not in SOLVERS:
+            raise FacesimError(f"linear_solver: expected one of {SOLVERS}, got {self.linear_solver!r}")
+        if not (self.rtol >= 0 and self.atol >= 0 and self.max_iterations >= 1):
+            raise FacesimError("NewtonOptions: rtol, atol must be >= 0 and max_iterations >= 1")
+
+
+@dataclass
+class SolveReport:
+    """What a nonlinear solve did: convergence, residual history (N), energies (mJ), timings (s)."""
+
+    converged: bool
+    iterations: int
+    residuals: list = field(default_factory=list)
+    energies: list = field(default_factory=list)
+    step_lengths: list = field(default_factory=list)
+    linear_iterations: list = field(default_factory=list)
+    force_scale: float = 1.0
+    seconds: dict = field(default_factory=dict)
+
+    @property
+    def relative_residual(self) -> float:
+        return self.residuals[-1] / self.force_scale if self.residuals else float("nan")
+
+    def to_dict(self) -> dict:
+        return {"converged": self.converged, "iterations": self.iterations,
+                "relative_residual": self.relative_residual, "residuals": list(map(float, self.residuals)),
+                "energies": list(map(float, self.energies)), "step_lengths": list(map(float, self.step_lengths)),
+                "linear_iterations": list(map(int, self.linear_iterations)), "force_scale": self.force_scale,
+                "seconds": {k: round(v, 4) for k, v in self.seconds.items()}}
+
+
+class Problem:
+    """Total energy of ``terms`` at activations ``a`` over ``system``, with prescribed positions
+    taken from ``x_fixed (n, 3)`` (free components of ``x_fixed`` are the starting guess)."""
+
+    def __init__(self, terms, system: DofSystem, x_fixed: np.ndarray, a=None):
+        self.terms = list(terms)
+        self.system = system
+        self.x_fixed = np.ascontiguousarray(x_fixed, dtype=np.float64)
+        self.a = a
+        self.timing = {"assembly": 0.0, "gradient": 0.0}
+
+    def positions(self, u: np.ndarray) -> np.ndarray:
+        return self.system.scatter(self.x_fixed, u)
+
+    def energy(self, x) -> float:
+        return float(sum(t.energy(x, self.a) for t in self.terms))
+
+    def energy_and_gradient(self, x) -> tuple[float, np.ndarray]:
+        t0 = time.perf_counter()
+        e, g = 0.0, np.zeros_like(x)
+        for t in self.terms:
+            et, gt = t.energy_and_gradient(x, self.a)
+            e += et
+            g += gt
+        self.timing["gradient"] += time.perf_counter() - t0
+        return e, self.system.gather(g)
+
+    def hessian(self, x, project: bool = True):
+        t0 = time.perf_counter()
+        data = self.system.new_data()
+        for t in self.terms:
+            t.add_hessian(x, self.a, self.system, data, project)
+        d = data[:, [0, 1, 2], [0, 1, 2]]
+        diag = float(np.abs(d).mean()) if d.size else 1.0
+        A = self.system.matrix(data, diag=diag if diag > 0 else 1.0)
+        self.timing["assembly"] += time.perf_counter() - t0
+        return A
+
+    def max_step(self, x, du: np.ndarray) -> float:
+        dx = np.zeros_like(x)
+        dx[self.system.active] = du.reshape(-1, 3)
+        return float(max_inversion_free_step(x, dx, self.terms[0].rest.tets, self.system.elems, 16))
+
+
+def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=None) -> tuple[np.ndarray, SolveReport]:
+    """Minimise the problem's energy from its starting guess; returns ``(x (n, 3), report)``.
+
+    ``linear`` may be a solver from :func:`~facesim.fem.linear.make_linear_solver` to reuse
+    (an AMG hierarchy carries over between solves of similar systems)."""
+    t_start = time.perf_counter()
+    sysm = problem.system
+    linear = linear or make_linear_solver(options.linear_solver)
+    lin_t0 = linear.stats.setup_seconds + linear.stats.solve_seconds
+    u = problem.x_fixed[sysm.active].ravel().copy()
+    x = problem.positions(u)
+    E, g = problem.energy_and_gradient(x)
+    rep = SolveReport(converged=False, iterations=0, force_scale=float(force_scale))
+    tol = options.rtol * force_scale + options.atol
+    rep.residuals.append(float(np.linalg.norm(g)))
+    rep.energies.append(E)
+    B = None
+    while rep.residuals[-1] > tol and rep.iterations < options.max_iterations:
+        A = problem.hessian(x, options.project)
+        if B is None:
+            B = sysm.rigid_modes(x)
+        rel = rep.residuals[-1] / max(force_scale, 1e-300)
+        n_before = len(linear.stats.iterations)
+        du = linear.solve(A, -g, B, rtol=min(options.linear_rtol, max(rel, 1e-12)))
+        rep.linear_iterations.extend(linear.stats.iterations[n_before:])
+        du[~sysm.free_dof] = 0.0
+        slope = float(g @ du)
+        if slope >= 0:   # not a descent direction (cannot happen with an SPD matrix); use -g
+            du = -g
+            slope = -float(g @ g)
+        limit = problem.max_step(x, du)
+        alpha = 1.0 if limit >= 1.0 else options.step_fraction * limit
+        if alpha < 1e-6:
+            alpha = 1.0   # an element must invert to make progress: the invertible energy allows it
+        for _ in range(options.max_backtracks):
+            x_new = problem.positions(u + alpha * du)
+            E_new, g_new = problem.energy_and_gradient(x_new)
+            if E_new <= E + options.armijo * alpha * slope or abs(E_new - E) <= 1e-14 * abs(E):
+                break
+            alpha *= 0.5
+        else:
+            rep.iterations += 1
+            break   # line search failed: energy cannot decrease along du any more
+        u = u + alpha * du
+        x, E, g = x_new, E_new, g_new
+        rep.iterations += 1
+        rep.step_lengths.append(alpha)
+        rep.residuals.append(float(np.linalg.norm(g)))
+        rep.energies.append(E)
+    rep.converged = rep.residuals[-1] <= tol
+    rep.seconds = {"total": time.perf_counter() - t_start, "assembly": problem.timing["assembly"],
+                   "gradient": problem.timing["gradient"],
+                   "linear": linear.stats.setup_seconds + linear.stats.solve_seconds - lin_t0}
+    return x, rep

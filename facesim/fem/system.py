@@ -1,0 +1,126 @@
+"""The sparse system of one mesh: which nodes are unknown, the 3x3-block pattern, the scatter
+map from element blocks to matrix blocks, and the element colouring. Built once per mesh and
+set of fixed nodes; every Newton step assembles into the same arrays."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from facesim._kernels.assembly import colour_elements, dirichlet_rows
+from facesim._kernels.elements import rest_shape
+from facesim.errors import FacesimError
+
+
+class RestShape:
+    """Rest-state geometry of a tet mesh: ``Bm (m, 3, 3) = Dm^-1`` and volumes ``V0 (m,)`` (mm^3)."""
+
+    def __init__(self, X: np.ndarray, tets: np.ndarray):
+        self.X = np.ascontiguousarray(X, dtype=np.float64)
+        self.tets = np.ascontiguousarray(tets, dtype=np.int32)
+        if self.X.ndim != 2 or self.X.shape[1] != 3:
+            raise FacesimError(f"X: expected shape (n, 3), got {self.X.shape}")
+        if self.tets.ndim != 2 or self.tets.shape[1] != 4:
+            raise FacesimError(f"tets: expected shape (m, 4), got {self.tets.shape}")
+        if len(self.tets) and (self.tets.min() < 0 or self.tets.max() >= len(self.X)):
+            raise FacesimError(f"tets: indices must lie in [0, {len(self.X)})")
+        self.Bm = np.empty((len(self.tets), 3, 3))
+        self.V0 = np.empty(len(self.tets))
+        rest_shape(self.X, self.tets, self.Bm, self.V0)
+        if np.any(self.V0 <= 0):
+            bad = int(np.argmin(self.V0))
+            raise FacesimError(f"tets: rest volumes must be positive (tet {bad} has {self.V0[bad]:.3g} mm^3); "
+                               "orient every tet so that (x1-x0).((x2-x0)x(x3-x0)) > 0")
+
+
+class DofSystem:
+    """Unknowns and matrix pattern for the elements ``elems`` of a mesh with ``fixed`` components.
+
+    ``fixed (n, 3) bool``: prescribed components. Nodes with all three components prescribed
+    are left out of the system; prescribed components of the remaining ("active") nodes keep
+    their rows with a unit diagonal, so the matrix stays 3x3-blocked (what AMG wants).
+
+    Attributes: ``active (N,)`` node ids of the system rows; ``row_of (n,)`` node -> block row
+    or -1; ``fixed_active (N, 3)``; ``indptr, indices`` (BSR pattern); ``e2b (m, 4, 4)`` block
+    index per element node pair or -1; ``colour_ptr, colour_elems`` elements grouped by colour.
+    """
+
+    def __init__(self, tets: np.ndarray, n_nodes: int, fixed: np.ndarray, elems: np.ndarray):
+        tets = np.ascontiguousarray(tets, dtype=np.int32)
+        fixed = np.asarray(fixed, dtype=bool)
+        if fixed.shape != (n_nodes, 3):
+            raise FacesimError(f"fixed: expected a boolean mask of shape ({n_nodes}, 3), got {fixed.shape}")
+        self.n_nodes = int(n_nodes)
+        self.elems = np.ascontiguousarray(elems, dtype=np.int64)
+        used = np.zeros(n_nodes, bool)
+        used[tets[self.elems].ravel()] = True
+        self.active = np.flatnonzero(used & ~fixed.all(axis=1)).astype(np.int64)
+        self.row_of = np.full(n_nodes, -1, np.int64)
+        self.row_of[self.active] = np.arange(len(self.active))
+        self.fixed_active = np.ascontiguousarray(fixed[self.active])
+        self.free_dof = ~self.fixed_active.ravel()
+        N = len(self.active)
+        # pattern: all (row, col) block pairs of active nodes sharing an element
+        r = self.row_of[tets[self.elems]]                      # (k, 4)
+        rr = np.repeat(r, 4, axis=1)                            # (k, 16): a-major
+        cc = np.tile(r, (1, 4))
+        ok = (rr >= 0) & (cc >= 0)
+        key = rr.astype(np.int64) * max(N, 1) + cc
+        uniq = np.unique(key[ok])
+        rows, cols = uniq // max(N, 1), uniq % max(N, 1)
+        self.indptr = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
+        self.indices = cols.astype(np.int32)
+        e2b = np.full(key.shape, -1, np.int64)
+        e2b[ok] = np.searchsorted(uniq, key[ok])
+        self.e2b = np.full((len(tets), 4, 4), -1, np.int64)
+        self.e2b[self.elems] = e2b.reshape(-1, 4, 4)
+        colour = colour_elements(tets, self.elems, n_nodes)
+        if len(colour) and colour[0] < 0:
+            raise FacesimError("assembly: element colouring needs more than 128 colours (is the mesh valid?)")
+        order = np.argsort(colour, kind="stable")
+        self.colour_elems = np.ascontiguousarray(self.elems[order])
+        n_col = int(colour.max()) + 1 if len(colour) else 0
+        self.colour_ptr = np.searchsorted(colour[order], np.arange(n_col + 1)).astype(np.int64)
+        self.n_blocks = len(self.indices)
+
+    @property
+    def n_dofs(self) -> int:
+        return 3 * len(self.active)
+
+    def new_data(self) -> np.ndarray:
+        return np.zeros((self.n_blocks, 3, 3))
+
+    def matrix(self, data: np.ndarray, diag: float = 1.0) -> sp.bsr_matrix:
+        """BSR matrix over the active dofs from assembled ``data``, prescribed rows set to ``diag``."""
+        dirichlet_rows(self.indptr, self.indices, data, self.fixed_active, float(diag))
+        return sp.bsr_matrix((data, self.indices, self.indptr), shape=(self.n_dofs, self.n_dofs))
+
+    def gather(self, g_full: np.ndarray) -> np.ndarray:
+        """(n, 3) nodal vector -> (3N,) system vector with prescribed components zeroed."""
+        v = g_full[self.active].ravel().copy()
+        v[~self.free_dof] = 0.0
+        return v
+
+    def scatter(self, x_full: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Positions with the active nodes' free components taken from ``u (3N,)``."""
+        x = x_full.copy()
+        xa = x[self.active]
+        flat = xa.ravel()
+        flat[self.free_dof] = u[self.free_dof]
+        x[self.active] = flat.reshape(-1, 3)
+        return x
+
+    def rigid_modes(self, x: np.ndarray) -> np.ndarray:
+        """(3N, 6) rigid-body modes at positions ``x (n, 3)`` (3 translations, 3 rotations), prescribed
+        components zeroed: the near-null space AMG needs for elasticity."""
+        p = x[self.active] - x[self.active].mean(axis=0)
+        N = len(p)
+        B = np.zeros((N, 3, 6))
+        for k in range(3):
+            B[:, k, k] = 1.0
+        B[:, 1, 3], B[:, 2, 3] = -p[:, 2], p[:, 1]
+        B[:, 0, 4], B[:, 2, 4] = p[:, 2], -p[:, 0]
+        B[:, 0, 5], B[:, 1, 5] = -p[:, 1], p[:, 0]
+        B = B.reshape(3 * N, 6)
+        B[~self.free_dof] = 0.0
+        return B

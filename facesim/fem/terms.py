@@ -1,0 +1,152 @@
+"""Energy terms of the flesh: invertible Mooney-Rivlin elasticity and muscle fibres.
+
+Each term has ``energy(x, a)``, ``gradient(x, a) -> (n, 3)`` and ``add_hessian(x, a, system,
+data, project)`` which adds its Hessian into a :class:`~facesim.fem.system.DofSystem`'s block
+data. ``x (n, 3)`` positions in mm, ``a (n_muscles,)`` activations. Energies in mJ (N mm),
+gradients in N.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from facesim._kernels import elements as K
+from facesim.errors import FacesimError
+from facesim.fem.material import DEFAULT_CLAMP, VOLUMETRIC
+from facesim.fem.system import DofSystem, RestShape
+
+
+def _positions(x, n) -> np.ndarray:
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if x.shape != (n, 3):
+        raise FacesimError(f"x: expected positions of shape ({n}, 3), got {x.shape}")
+    return x
+
+
+class ElasticTerm:
+    """Mooney-Rivlin flesh on the tets ``elems`` with per-tet parameters (MPa).
+
+    ``c10, c01, kappa``: (m,) arrays over all tets of the mesh (only ``elems`` are used).
+    """
+
+    def __init__(self, rest: RestShape, c10, c01, kappa, elems=None, volumetric: str = "log",
+                 clamp: float = DEFAULT_CLAMP):
+        m = len(rest.tets)
+        self.rest = rest
+        self.c10, self.c01, self.kappa = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, np.float64), (m,)))
+                                          for v in (c10, c01, kappa))
+        if volumetric not in VOLUMETRIC:
+            raise FacesimError(f"volumetric: expected one of {tuple(VOLUMETRIC)}, got {volumetric!r}")
+        self.vol = VOLUMETRIC[volumetric]
+        self.clamp = float(clamp)
+        self.elems = np.ascontiguousarray(np.arange(m) if elems is None else elems, dtype=np.int64)
+
+    def _args(self):
+        r = self.rest
+        return r.tets, r.Bm, r.V0, self.c10, self.c01, self.kappa, self.vol, self.clamp
+
+    def energy(self, x, a=None) -> float:
+        return K.elastic_energy(_positions(x, len(self.rest.X)), *self._args(), self.elems)
+
+    def energy_and_gradient(self, x, a=None) -> tuple[float, np.ndarray]:
+        x = _positions(x, len(self.rest.X))
+        ge = np.empty((len(self.elems), 4, 3))
+        e = K.elastic_element_gradients(x, *self._args(), self.elems, ge)
+        g = np.zeros_like(x)
+        K.scatter_gradient(self.rest.tets, self.elems, ge, g)
+        return e, g
+
+    def gradient(self, x, a=None) -> np.ndarray:
+        return self.energy_and_gradient(x, a)[1]
+
+    def add_hessian(self, x, a, system: DofSystem, data: np.ndarray, project: bool = True) -> None:
+        K.elastic_assemble(_positions(x, len(self.rest.X)), *self._args(), bool(project), system.colour_ptr,
+                           system.colour_elems, system.e2b, data)
+
+    def element_hessians(self, x, project: bool = False) -> np.ndarray:
+        """(len(elems), 12, 12) element Hessians (node-major dofs), for tests and inspection."""
+        Ke = np.empty((len(self.elems), 12, 12))
+        K.elastic_element_hessians(_positions(x, len(self.rest.X)), *self._args(), bool(project), self.elems, Ke)
+        return Ke
+
+
+class MuscleTerm:
+    """Fibre term of all muscles: passive plus activation-scaled active force-length stress.
+
+    Entries ``(tet, muscle, fraction, fibre)`` as in :class:`~facesim.model.MuscleSet`;
+    ``sigma_max (M,)`` MPa; ``gain (M,)`` scales each muscle's active curve (exaggeration, 1 by
+    default). Energy ``sum V0 sigma rho [F_P(lam) + a g F_L(lam)]``.
+    """
+
+    def __init__(self, rest: RestShape, tet, muscle, fraction, fibre, sigma_max, gain=None, elems=None):
+        self.rest = rest
+        order = np.lexsort((np.asarray(muscle), np.asarray(tet)))   # group entries by tet
+        self.tet = np.ascontiguousarray(np.asarray(tet, np.int64)[order])
+        self.muscle = np.ascontiguousarray(np.asarray(muscle, np.int64)[order])
+        self.fraction = np.ascontiguousarray(np.asarray(fraction, np.float64)[order])
+        self.fibre = np.ascontiguousarray(np.asarray(fibre, np.float64)[order])
+        self.sigma = np.ascontiguousarray(sigma_max, dtype=np.float64)
+        self.n_muscles = len(self.sigma)
+        self.gain = np.ascontiguousarray(np.ones(self.n_muscles) if gain is None else gain, dtype=np.float64)
+        if self.gain.shape != (self.n_muscles,):
+            raise FacesimError(f"gain: expected shape ({self.n_muscles},), got {self.gain.shape}")
+        if elems is not None:   # keep only entries on assembled tets
+            keep = np.zeros(len(rest.tets), bool)
+            keep[elems] = True
+            k = keep[self.tet]
+            self.tet, self.muscle, self.fraction, self.fibre = (np.ascontiguousarray(v[k]) for v in
+                                                                (self.tet, self.muscle, self.fraction, self.fibre))
+        self.ent_ptr = np.searchsorted(self.tet, np.arange(len(rest.tets) + 1)).astype(np.int64)
+
+    def with_gain(self, gain) -> "MuscleTerm":
+        """A copy with another per-muscle gain (exaggeration)."""
+        other = object.__new__(MuscleTerm)
+        other.__dict__.update(self.__dict__)
+        other.gain = np.ascontiguousarray(gain, dtype=np.float64)
+        if other.gain.shape != (self.n_muscles,):
+            raise FacesimError(f"gain: expected shape ({self.n_muscles},), got {other.gain.shape}")
+        return other
+
+    def _a(self, a) -> np.ndarray:
+        a = np.zeros(self.n_muscles) if a is None else np.ascontiguousarray(a, dtype=np.float64)
+        if a.shape != (self.n_muscles,):
+            raise FacesimError(f"activations: expected shape ({self.n_muscles},), got {a.shape}")
+        return a
+
+    def _entry_gradients(self, x, a, active_only):
+        r = self.rest
+        ge = np.empty((len(self.tet), 4, 3))
+        e = K.fibre_element_gradients(_positions(x, len(r.X)), r.tets, r.Bm, r.V0, self.tet, self.muscle,
+                                      self.fraction, self.fibre, self.sigma, self.gain, self._a(a), active_only, ge)
+        return e, ge
+
+    def energy(self, x, a=None) -> float:
+        return self._entry_gradients(x, a, False)[0]
+
+    def energy_and_gradient(self, x, a=None) -> tuple[float, np.ndarray]:
+        e, ge = self._entry_gradients(x, a, False)
+        g = np.zeros((len(self.rest.X), 3))
+        K.scatter_gradient(self.rest.tets, self.tet, ge, g)
+        return e, g
+
+    def gradient(self, x, a=None) -> np.ndarray:
+        return self.energy_and_gradient(x, a)[1]
+
+    def add_hessian(self, x, a, system: DofSystem, data: np.ndarray, project: bool = True) -> None:
+        r = self.rest
+        K.fibre_assemble(_positions(x, len(r.X)), r.tets, r.Bm, r.V0, self.ent_ptr, self.fibre, self.muscle,
+                         self.fraction, self.sigma, self.gain, self._a(a), bool(project), system.colour_ptr,
+                         system.colour_elems, system.e2b, data)
+
+    def force_columns(self, x) -> sp.csc_matrix:
+        """``G (3n, n_muscles)``: column m is the internal force of muscle m at activation 1 with the
+        passive part removed, ``g_m = -d/dx [sigma rho g F_L]``; the total internal force is
+        ``f(x, a) = f_0(x) + G(x) a`` (Sifakis 2005 eq. 1). Newtons."""
+        _, ge = self._entry_gradients(x, None, True)
+        n = len(self.rest.X)
+        nodes = self.rest.tets[self.tet]                          # (k, 4)
+        rows = (3 * nodes[:, :, None] + np.arange(3)).reshape(len(self.tet), 12)
+        cols = np.repeat(self.muscle[:, None], 12, axis=1)
+        return sp.csc_matrix((-ge.reshape(len(self.tet), 12).ravel(), (rows.ravel(), cols.ravel())),
+                             shape=(3 * n, self.n_muscles))
