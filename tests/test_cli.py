@@ -49,14 +49,14 @@ def test_build_calls_the_anatomy_builder_and_saves(box_model, tmp_path, monkeypa
 
     calls = []
 
-    def fake_build_head(resolution="coarse", seed=0, progress=True):
-        calls.append((resolution, seed, progress))
+    def fake_build_head(resolution="coarse", seed=0, progress=None, mesh=None):
+        calls.append((resolution, seed, progress, mesh))
         return box_model
 
     monkeypatch.setattr(facesim.anatomy, "build_head", fake_build_head, raising=False)
     out = tmp_path / "m.npz"
     assert main(["model", "build", "--resolution", "test", "--seed", "3", "-o", str(out), "-q"]) == 0
-    assert calls == [("test", 3, False)]
+    assert calls == [("test", 3, None, None)]
     assert load_model(out).n_tets == 720
     printed = capsys.readouterr().out
     assert "720 tets" in printed and " s: " in printed and str(out) in printed
