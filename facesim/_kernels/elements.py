@@ -18,7 +18,14 @@ from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
 from facesim._kernels.fibre import fibre_stress
-from facesim._kernels.mooney import mr_modes
+from facesim._kernels.mooney import MODES_WORK, mr_modes
+
+
+@njit(**JIT_FLAGS)
+def _chunks(n):
+    """Number of chunks a parallel loop over ``n`` items is split into (scratch is allocated per chunk;
+    a constant, so cached kernels do not depend on the thread count)."""
+    return min(n, 64)
 
 
 @njit(**JIT_FLAGS)
@@ -74,38 +81,30 @@ def rest_shape(X, tets, Bm, V0):
 # ---------------------------------------------------------------- Mooney-Rivlin flesh
 
 @njit(parallel=True, **JIT_FLAGS)
-def elastic_energy(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems):
-    """Sum of V0 psi over the tets listed in ``elems``."""
-    total = 0.0
-    for i in prange(elems.shape[0]):
-        e = elems[i]
-        F = np.empty((3, 3))
-        P = np.empty((3, 3))
-        lam = np.empty(9)
-        Q = np.empty((9, 3, 3))
-        deformation_gradient(x, tets[e], Bm[e], F)
-        total += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q)
-    return total
-
-
-@njit(parallel=True, **JIT_FLAGS)
-def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems, ge):
-    """``ge (len(elems), 4, 3)``: dE_e/dx of each listed tet; returns the energy."""
-    total = 0.0
-    for i in prange(elems.shape[0]):
-        e = elems[i]
+def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems, ge, want_gradient):
+    """``ge (len(elems), 4, 3)``: dE_e/dx of each listed tet (if ``want_gradient``); returns the energy."""
+    n = elems.shape[0]
+    nc = _chunks(n)
+    part = np.zeros(max(nc, 1))
+    for c in prange(nc):
         F = np.empty((3, 3))
         P = np.empty((3, 3))
         b = np.empty((4, 3))
         lam = np.empty(9)
         Q = np.empty((9, 3, 3))
-        deformation_gradient(x, tets[e], Bm[e], F)
-        total += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q)
-        shape_gradients(Bm[e], b)
-        for a in range(4):
-            for k in range(3):
-                ge[i, a, k] = V0[e] * (P[k, 0] * b[a, 0] + P[k, 1] * b[a, 1] + P[k, 2] * b[a, 2])
-    return total
+        work = np.empty(MODES_WORK)
+        acc = 0.0
+        for i in range(c * n // nc, (c + 1) * n // nc):
+            e = elems[i]
+            deformation_gradient(x, tets[e], Bm[e], F)
+            acc += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work)
+            if want_gradient:
+                shape_gradients(Bm[e], b)
+                for a in range(4):
+                    for k in range(3):
+                        ge[i, a, k] = V0[e] * (P[k, 0] * b[a, 0] + P[k, 1] * b[a, 1] + P[k, 2] * b[a, 2])
+        part[c] = acc
+    return part.sum()
 
 
 @njit(**JIT_FLAGS)
@@ -132,16 +131,16 @@ def _add_block(data, e2b_e, K):
 
 
 @njit(**JIT_FLAGS)
-def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, K):
-    """12x12 Hessian of one tet into ``K`` (zeroed here)."""
-    F = np.empty((3, 3))
-    P = np.empty((3, 3))
-    b = np.empty((4, 3))
-    lam = np.empty(9)
-    Q = np.empty((9, 3, 3))
-    w = np.empty(12)
+def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, K, scratch, work):
+    """12x12 Hessian of one tet into ``K`` (zeroed here); ``scratch (>= 9 + 9 + 81 + 12 + 12,)``."""
+    F = scratch[0:9].reshape((3, 3))
+    P = scratch[9:18].reshape((3, 3))
+    Q = scratch[18:99].reshape((9, 3, 3))
+    b = scratch[99:111].reshape((4, 3))
+    w = scratch[111:123]
+    lam = scratch[123:132]
     deformation_gradient(x, tet, Bm, F)
-    mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q)
+    mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work)
     shape_gradients(Bm, b)
     for r in range(12):
         for c in range(12):
@@ -156,8 +155,14 @@ def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, 
         s = V0 * lm
         for r in range(12):
             wr = s * w[r]
-            for c in range(12):
+            for c in range(r, 12):
                 K[r, c] += wr * w[c]
+    for r in range(12):
+        for c in range(r):
+            K[r, c] = K[c, r]
+
+
+ELEMENT_SCRATCH = 132
 
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -165,11 +170,17 @@ def elastic_assemble(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, color_
     """Add the Hessians of the coloured tets into BSR ``data``; one parallel loop per colour."""
     for col in range(color_ptr.shape[0] - 1):
         lo = color_ptr[col]
-        for i in prange(color_ptr[col + 1] - lo):
-            e = color_elems[lo + i]
+        n = color_ptr[col + 1] - lo
+        nc = _chunks(n)
+        for c in prange(nc):
             K = np.empty((12, 12))
-            elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, K)
-            _add_block(data, e2b[e], K)
+            scratch = np.empty(ELEMENT_SCRATCH)
+            work = np.empty(MODES_WORK)
+            for i in range(c * n // nc, (c + 1) * n // nc):
+                e = color_elems[lo + i]
+                elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, K,
+                                        scratch, work)
+                _add_block(data, e2b[e], K)
 
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -177,7 +188,10 @@ def elastic_element_hessians(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project
     """``Ke (k, 12, 12)``: element Hessians of the listed tets (for tests and small problems)."""
     for i in prange(elems.shape[0]):
         e = elems[i]
-        elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, Ke[i])
+        scratch = np.empty(ELEMENT_SCRATCH)
+        work = np.empty(MODES_WORK)
+        elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, Ke[i],
+                                scratch, work)
 
 
 # ---------------------------------------------------------------- muscle fibres

@@ -14,7 +14,8 @@ def ribbon_inside(P, C, Tn, Nn, W, H, closed, inside, fibre):
 
     At each polyline vertex: unit tangent ``Tn``, unit normal ``Nn`` (thickness direction),
     half width ``W`` (across, along Tn x Nn) and half thickness ``H``; interpolated linearly
-    along segments. Open ribbons get elliptic end caps of length H. Writes ``inside (q,)``
+    along segments. Each segment is capped by half-ellipsoids of length H (at the ends of open
+    ribbons and, overlapping the next segment, at interior vertices). Writes ``inside (q,)``
     (bool) and the interpolated unit tangent of the closest segment into ``fibre (q, 3)``.
     """
     k = C.shape[0]
@@ -33,14 +34,14 @@ def ribbon_inside(P, C, Tn, Nn, W, H, closed, inside, fibre):
             d1 = P[i, 1] - C[a, 1]
             d2 = P[i, 2] - C[a, 2]
             t = (d0 * ab0 + d1 * ab1 + d2 * ab2) / L2
+            # the offset along the path beyond a segment's end counts at every vertex: dropping it
+            # at interior vertices made each vertex grow a ray along its tangent
             excess = 0.0
             if t < 0.0:
-                if not closed and s == 0:
-                    excess = -t * np.sqrt(L2)
+                excess = -t * np.sqrt(L2)
                 t = 0.0
             elif t > 1.0:
-                if not closed and s == nseg - 1:
-                    excess = (t - 1.0) * np.sqrt(L2)
+                excess = (t - 1.0) * np.sqrt(L2)
                 t = 1.0
             r0 = d0 - t * ab0
             r1 = d1 - t * ab1

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
-from facesim._kernels.svd3 import _sym_eig3, svd3
+from facesim._kernels.svd3 import SVD_WORK, _sym_eig3, svd3
 
 #: |s_i - s_j| (relative) below which the divided difference is replaced by its limit
 _DIVIDED_TOL = 1e-7
@@ -36,46 +36,61 @@ _P = np.array([[4.0, -2.0, -2.0], [-2.0, 4.0, -2.0], [-2.0, -2.0, 4.0],
                [-4.0, 2.0, 2.0], [2.0, -4.0, 2.0], [2.0, 2.0, -4.0]]) / 3.0
 
 
+#: scratch floats :func:`psi_derivatives`, :func:`psi_extended` and :func:`mr_modes` need
+PSI_WORK = 12
+EXT_WORK = 3 + 3 + 3 + 9 + 27 + PSI_WORK
+MODES_WORK = 54 + SVD_WORK + EXT_WORK
+
+
 @njit(**JIT_FLAGS)
-def psi_derivatives(s, c10, c01, kappa, vol, g, H, T):
-    """psi at positive ``s`` (3,), with gradient ``g`` (3,), Hessian ``H`` (3, 3) and third
-    derivatives ``T`` (3, 3, 3) written in place."""
+def psi_derivatives(s, c10, c01, kappa, vol, third, g, H, T, work):
+    """psi at positive ``s`` (3,), with gradient ``g`` (3,) and Hessian ``H`` (3, 3) written in place;
+    the third derivatives ``T`` (3, 3, 3) only if ``third``. ``work`` (>= PSI_WORK,) scratch."""
+    inv = work[0:3]
+    cb = work[3:6]
+    mono = work[6:12]
     psi = -3.0 * (c10 + c01)
     for i in range(3):
         g[i] = 0.0
+        inv[i] = 1.0 / s[i]
+        cb[i] = s[i] ** (1.0 / 3.0)
         for j in range(3):
             H[i, j] = 0.0
-            for k in range(3):
-                T[i, j, k] = 0.0
-    inv = np.empty(3)
-    for i in range(3):
-        inv[i] = 1.0 / s[i]
+            if third:
+                for k in range(3):
+                    T[i, j, k] = 0.0
+    # s^(4/3) = s cb, s^(-2/3) = 1/cb^2, s^(2/3) = cb^2, s^(-4/3) = 1/(s cb)
+    q = 1.0 / (cb[0] * cb[1] * cb[2]) ** 2      # J^(-2/3)
+    for r in range(3):
+        mono[r] = c10 * s[r] * s[r] * q                               # I1_bar terms
+        mono[3 + r] = c01 * q * q * (s[(r + 1) % 3] * s[(r + 2) % 3]) ** 2   # I2_bar terms
     for r in range(6):
-        c = c10 if r < 3 else c01
         p = _P[r]
-        m = c * s[0] ** p[0] * s[1] ** p[1] * s[2] ** p[2]
+        m = mono[r]
         psi += m
         for i in range(3):
             g[i] += p[i] * m * inv[i]
             for j in range(3):
                 pij = p[i] * (p[j] - (1.0 if i == j else 0.0))
                 H[i, j] += pij * m * inv[i] * inv[j]
-                for k in range(3):
-                    e = p[k] - (1.0 if i == k else 0.0) - (1.0 if j == k else 0.0)
-                    T[i, j, k] += pij * e * m * inv[i] * inv[j] * inv[k]
+                if third:
+                    for k in range(3):
+                        e = p[k] - (1.0 if i == k else 0.0) - (1.0 if j == k else 0.0)
+                        T[i, j, k] += pij * e * m * inv[i] * inv[j] * inv[k]
     if vol == 0:
-        L = math.log(s[0]) + math.log(s[1]) + math.log(s[2])
+        L = math.log(s[0] * s[1] * s[2])
         psi += 0.5 * kappa * L * L
         for i in range(3):
             g[i] += kappa * L * inv[i]
             for j in range(3):
                 Lij = -inv[i] * inv[i] if i == j else 0.0
                 H[i, j] += kappa * (inv[i] * inv[j] + L * Lij)
-                for k in range(3):
-                    Lik = -inv[i] * inv[i] if i == k else 0.0
-                    Ljk = -inv[j] * inv[j] if j == k else 0.0
-                    Lijk = 2.0 * inv[i] ** 3 if (i == j and j == k) else 0.0
-                    T[i, j, k] += kappa * (Lik * inv[j] + inv[i] * Ljk + inv[k] * Lij + L * Lijk)
+                if third:
+                    for k in range(3):
+                        Lik = -inv[i] * inv[i] if i == k else 0.0
+                        Ljk = -inv[j] * inv[j] if j == k else 0.0
+                        Lijk = 2.0 * inv[i] ** 3 if (i == j and j == k) else 0.0
+                        T[i, j, k] += kappa * (Lik * inv[j] + inv[i] * Ljk + inv[k] * Lij + L * Lijk)
     else:
         J = s[0] * s[1] * s[2]
         psi += 0.5 * kappa * (J - 1.0) ** 2
@@ -86,47 +101,52 @@ def psi_derivatives(s, c10, c01, kappa, vol, g, H, T):
                 Jj = J * inv[j]
                 Jij = 0.0 if i == j else J * inv[i] * inv[j]
                 H[i, j] += kappa * (Ji * Jj + (J - 1.0) * Jij)
-                for k in range(3):
-                    Jk = J * inv[k]
-                    Jik = 0.0 if i == k else J * inv[i] * inv[k]
-                    Jjk = 0.0 if j == k else J * inv[j] * inv[k]
-                    Jijk = J * inv[0] * inv[1] * inv[2] if (i != j and j != k and i != k) else 0.0
-                    T[i, j, k] += kappa * (Jik * Jj + Ji * Jjk + Jk * Jij + (J - 1.0) * Jijk)
+                if third:
+                    for k in range(3):
+                        Jk = J * inv[k]
+                        Jik = 0.0 if i == k else J * inv[i] * inv[k]
+                        Jjk = 0.0 if j == k else J * inv[j] * inv[k]
+                        Jijk = J * inv[0] * inv[1] * inv[2] if (i != j and j != k and i != k) else 0.0
+                        T[i, j, k] += kappa * (Jik * Jj + Ji * Jjk + Jk * Jij + (J - 1.0) * Jijk)
     return psi
 
 
 @njit(**JIT_FLAGS)
-def psi_extended(s, c10, c01, kappa, vol, eps, g, H):
+def psi_extended(s, c10, c01, kappa, vol, eps, g, H, work):
     """The clamped-and-continued energy psi~ at signed ``s`` (3,); gradient ``g`` and Hessian ``H``
-    in the singular values written in place."""
-    sh = np.empty(3)
-    clamped = np.zeros(3, dtype=np.bool_)
+    in the singular values written in place. ``work`` (>= EXT_WORK,) scratch."""
+    sh = work[0:3]
+    clamped = work[3:6]
+    g0 = work[6:9]
+    H0 = work[9:18].reshape((3, 3))
+    T0 = work[18:45].reshape((3, 3, 3))
+    any_clamped = False
     for i in range(3):
-        clamped[i] = s[i] < eps
-        sh[i] = eps if clamped[i] else s[i]
-    g0 = np.empty(3)
-    H0 = np.empty((3, 3))
-    T0 = np.empty((3, 3, 3))
-    psi = psi_derivatives(sh, c10, c01, kappa, vol, g0, H0, T0)
+        clamped[i] = 1.0 if s[i] < eps else 0.0
+        sh[i] = eps if s[i] < eps else s[i]
+        any_clamped = any_clamped or s[i] < eps
+    psi = psi_derivatives(sh, c10, c01, kappa, vol, any_clamped, g0, H0, T0, work[45:])
     for i in range(3):
         g[i] = g0[i]
         for j in range(3):
             H[i, j] = H0[i, j]
+    if not any_clamped:
+        return psi
     for c in range(3):
-        if not clamped[c]:
+        if clamped[c] == 0.0:
             continue
         d = s[c] - eps
         psi += g0[c] * d
         for i in range(3):
-            if clamped[i]:
+            if clamped[i] != 0.0:
                 continue
             g[i] += H0[c, i] * d
             for j in range(3):
-                if not clamped[j]:
+                if clamped[j] == 0.0:
                     H[i, j] += T0[c, i, j] * d
     for i in range(3):
         for j in range(3):
-            if clamped[i] and clamped[j]:
+            if clamped[i] != 0.0 and clamped[j] != 0.0:
                 H[i, j] = 0.0
     return psi
 
@@ -148,23 +168,27 @@ def _pair_eigenvalues(si, sj, gi, gj, Hii, Hij, Hjj):
 
 
 @njit(**JIT_FLAGS)
-def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q):
+def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work):
     """Energy density at ``F`` (3, 3); first Piola stress into ``P`` (3, 3); the nine eigenvalues
-    of dP/dF into ``lam`` (9,) and their unit eigenvectors (as 3x3 matrices) into ``Q`` (9, 3, 3)."""
-    U = np.empty((3, 3))
-    V = np.empty((3, 3))
-    s = np.empty(3)
-    svd3(F, U, s, V)
-    g = np.empty(3)
-    H = np.empty((3, 3))
-    psi = psi_extended(s, c10, c01, kappa, vol, eps, g, H)
+    of dP/dF into ``lam`` (9,) and their unit eigenvectors (as 3x3 matrices) into ``Q`` (9, 3, 3).
+    ``work`` (>= MODES_WORK,) scratch."""
+    U = work[0:9].reshape((3, 3))
+    V = work[9:18].reshape((3, 3))
+    s = work[18:21]
+    g = work[21:24]
+    H = work[24:33].reshape((3, 3))
+    A = work[33:42].reshape((3, 3))
+    E = work[42:51].reshape((3, 3))
+    w = work[51:54]
+    svd3(F, U, s, V, work[54:54 + SVD_WORK])
+    psi = psi_extended(s, c10, c01, kappa, vol, eps, g, H, work[54 + SVD_WORK:])
     for k in range(3):
         for l in range(3):
             P[k, l] = U[k, 0] * g[0] * V[l, 0] + U[k, 1] * g[1] * V[l, 1] + U[k, 2] * g[2] * V[l, 2]
     # diagonal block
-    A = H.copy()
-    E = np.empty((3, 3))
-    w = np.empty(3)
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = H[i, j]
     _sym_eig3(A, E, w)
     for e in range(3):
         lam[e] = w[e]
@@ -173,17 +197,18 @@ def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q):
                 Q[e, k, l] = U[k, 0] * E[0, e] * V[l, 0] + U[k, 1] * E[1, e] * V[l, 1] + U[k, 2] * E[2, e] * V[l, 2]
     r2 = 1.0 / math.sqrt(2.0)
     e = 3
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        ls, la = _pair_eigenvalues(s[i], s[j], g[i], g[j], H[i, i], H[i, j], H[j, j])
-        lam[e] = ls
-        lam[e + 1] = la
-        for k in range(3):
-            for l in range(3):
-                a = U[k, i] * V[l, j]
-                b = U[k, j] * V[l, i]
-                Q[e, k, l] = r2 * (a + b)
-                Q[e + 1, k, l] = r2 * (a - b)
-        e += 2
+    for i in range(3):
+        for j in range(i + 1, 3):
+            ls, la = _pair_eigenvalues(s[i], s[j], g[i], g[j], H[i, i], H[i, j], H[j, j])
+            lam[e] = ls
+            lam[e + 1] = la
+            for k in range(3):
+                for l in range(3):
+                    a = U[k, i] * V[l, j]
+                    b = U[k, j] * V[l, i]
+                    Q[e, k, l] = r2 * (a + b)
+                    Q[e + 1, k, l] = r2 * (a - b)
+            e += 2
     return psi
 
 
@@ -194,7 +219,8 @@ def mr_density_batch(F, c10, c01, kappa, vol, eps, psi, P):
     for e in prange(F.shape[0]):
         lam = np.empty(9)
         Q = np.empty((9, 3, 3))
-        psi[e] = mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P[e], lam, Q)
+        work = np.empty(MODES_WORK)
+        psi[e] = mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P[e], lam, Q, work)
 
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -204,7 +230,8 @@ def mr_tangent_batch(F, c10, c01, kappa, vol, eps, project, D):
         lam = np.empty(9)
         Q = np.empty((9, 3, 3))
         P = np.empty((3, 3))
-        mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P, lam, Q)
+        work = np.empty(MODES_WORK)
+        mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work)
         for r in range(9):
             for c in range(9):
                 D[e, r, c] = 0.0

@@ -67,14 +67,22 @@ def _any_orthogonal(a, out):
     out[2] = bz / n
 
 
+#: scratch floats :func:`svd3` needs in ``work``
+SVD_WORK = 27
+
+
 @njit(**JIT_FLAGS)
-def svd3(F, U, s, V):
-    """Signed SVD of ``F`` (3, 3) into ``U`` (3, 3), ``s`` (3,), ``V`` (3, 3), all preallocated."""
-    A = np.empty((3, 3))
+def svd3(F, U, s, V, work):
+    """Signed SVD of ``F`` (3, 3) into ``U`` (3, 3), ``s`` (3,), ``V`` (3, 3), all preallocated;
+    ``work`` (>= SVD_WORK,) scratch (no allocation in the element loops)."""
+    A = work[0:9].reshape((3, 3))
+    w = work[9:12]
+    B = work[12:21].reshape((3, 3))
+    u1 = work[21:24]
+    u2 = work[24:27]
     for i in range(3):
         for j in range(3):
             A[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
-    w = np.empty(3)
     _sym_eig3(A, V, w)
     # sort eigenpairs descending
     for i in range(3):
@@ -92,12 +100,9 @@ def svd3(F, U, s, V):
     if det < 0.0:
         for r in range(3):
             V[r, 2] = -V[r, 2]
-    B = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
             B[i, j] = F[i, 0] * V[0, j] + F[i, 1] * V[1, j] + F[i, 2] * V[2, j]
-    u1 = np.empty(3)
-    u2 = np.empty(3)
     n1 = math.sqrt(B[0, 0] ** 2 + B[1, 0] ** 2 + B[2, 0] ** 2)
     if n1 > 1e-300:
         for r in range(3):

@@ -70,7 +70,9 @@ def measure_depths(X: np.ndarray, skin: np.ndarray, fields: phantom.HeadFields, 
     """Soft-tissue depth (mm) at each landmark of :data:`phantom.DEPTH_LANDMARKS`.
 
     From the bone (or tooth) surface point on the landmark's line, along its outward direction,
-    to the first crossing of the outer skin.
+    to the first crossing of the outer skin: ``depth_mm`` on the meshed skin ``(X, skin)``,
+    ``anatomy_depth_mm`` on the skin field (the anatomy before meshing; the mesh follows it to
+    within the fTetWild envelope).
     """
     g = fields.grid
     hard = np.minimum(np.minimum(fields.cranium_skull, fields.jaw), np.minimum(fields.teeth_upper, fields.teeth_lower))
@@ -79,9 +81,8 @@ def measure_depths(X: np.ndarray, skin: np.ndarray, fields: phantom.HeadFields, 
     for name, p, n, _, rng in phantom.DEPTH_LANDMARKS:
         n = np.asarray(n, float) / np.linalg.norm(n)
         p = sub.scaled(p)
-        s = np.linspace(-25, 25, 501)
-        line = p + s[:, None] * n
-        val = g.sample(hard, line)
+        s = np.linspace(-25, 25, 5001)
+        val = g.sample(hard, p + s[:, None] * n)
         outside = val > 0
         # last inside->outside crossing before the skin: the bone surface
         idx = np.flatnonzero(~outside[:-1] & outside[1:])
@@ -94,8 +95,13 @@ def measure_depths(X: np.ndarray, skin: np.ndarray, fields: phantom.HeadFields, 
         if not len(loc):
             raise FacesimError(f"depth landmark {name}: the skin is not reached along its direction")
         d = np.min(np.linalg.norm(loc - bone_pt, axis=1))
-        out[name] = {"depth_mm": float(d), "range_mm": list(rng), "bone_point": bone_pt.tolist(),
-                     "direction": n.tolist()}
+        s2 = np.linspace(0.0, 40.0, 8001)
+        sk = g.sample(fields.skin, bone_pt + s2[:, None] * n)
+        j = np.flatnonzero((sk[:-1] < 0) & (sk[1:] >= 0))
+        d_field = float(s2[j[0]] + (s2[j[0] + 1] - s2[j[0]]) * -sk[j[0]] / (sk[j[0] + 1] - sk[j[0]])) if len(j) \
+            else float("nan")
+        out[name] = {"depth_mm": float(d), "anatomy_depth_mm": d_field, "range_mm": list(rng),
+                     "bone_point": bone_pt.tolist(), "direction": n.tolist()}
     return out
 
 
@@ -194,6 +200,7 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
         "edge_face_mm": edge_face,
         "edge_back_mm": edge_back,
         "envelope": epsilon,
+        "envelope_mm": float(epsilon * np.linalg.norm(v.max(0) - v.min(0))),
         "mesher": "pytetwild (fTetWild)" if mesh is None else "reused tet mesh",
         "timings": timings,
         "quality": quality,

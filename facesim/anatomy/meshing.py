@@ -16,7 +16,7 @@ from scipy import ndimage
 from skimage import measure
 
 from facesim.anatomy import sdf
-from facesim.anatomy.phantom import HeadFields, Subject
+from facesim.anatomy.phantom import HeadFields
 from facesim.errors import FacesimError
 
 #: Boundary-face labels.
@@ -142,7 +142,7 @@ def signed_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
 def boundary_faces(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Faces used by exactly one tet, outward oriented for positive tets: ``(faces (b, 3), tet (b,))``."""
     # the face opposite vertex k, ordered so its normal points away from vertex k
-    local = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]])
+    local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
     F = T[:, local].reshape(-1, 3)
     owner = np.repeat(np.arange(len(T)), 4)
     key = np.sort(F, axis=1)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from facesim._kernels.embed import ribbon_inside
@@ -120,42 +119,14 @@ def _inside_ribbon(P: np.ndarray, pts: np.ndarray, tang: np.ndarray, nrm: np.nda
                    H: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
     """Which of the points ``P (q, 3)`` lie in the ribbon laid along ``pts (k, 3)``, and its fibre there.
 
-    The ribbon is the union of one capsule per segment, each tested by ``ribbon_inside`` as a
-    two-point open ribbon with elliptic caps of length H at both ends. Handing the kernel the
-    whole polyline instead is wrong: where the nearest point of a segment is clamped to an
-    *interior* vertex the kernel drops the offset along the tangent, so every vertex grows a ray
-    along its tangent (and the ends of an open path run on past their caps) until the candidate
-    box stops it. Where capsules overlap the fibre is that of the nearest segment.
-    Returns ``(inside (q,) bool, fibre (q, 3) unit tangents, zero outside)``.
+    Returns ``(inside (q,) bool, fibre (q, 3) unit tangents of the closest segment, zero outside)``.
     """
-    k = len(pts)
     inside = np.zeros(len(P), dtype=np.bool_)
     fibre = np.zeros((len(P), 3))
-    best = np.full(len(P), np.inf)     # distance to the segment that set the fibre
-    # hundreds of small calls: waking the kernel's worker threads for each costs more than the
-    # work (4x slower on a busy 2-core machine). The setting is per calling thread; restored below.
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        for a in range(k if closed else k - 1):
-            ab = [a, (a + 1) % k]
-            # the capsule lies within max(W, H) of its segment (its frame tilts by the vertex tangents)
-            reach = 1.5 * max(W[ab].max(), H[ab].max()) + 1.0
-            lo, hi = pts[ab].min(0) - reach, pts[ab].max(0) + reach
-            sel = np.flatnonzero(np.all((P > lo) & (P < hi), axis=1))
-            seg = pts[ab[1]] - pts[a]
-            t = np.clip((P[sel] - pts[a]) @ seg / max(seg @ seg, 1e-18), 0.0, 1.0)
-            dist = np.linalg.norm(P[sel] - pts[a] - t[:, None] * seg, axis=1)
-            sel, dist = sel[dist < reach], dist[dist < reach]
-            ins = np.zeros(len(sel), dtype=np.bool_)
-            fib = np.zeros((len(sel), 3))
-            ribbon_inside(np.ascontiguousarray(P[sel]), pts[ab], tang[ab], nrm[ab], W[ab], H[ab], False, ins, fib)
-            win = ins & (dist < best[sel])
-            best[sel[win]] = dist[win]
-            inside[sel[win]] = True
-            fibre[sel[win]] = fib[win]
-    finally:
-        numba.set_num_threads(threads)
+    ribbon_inside(np.ascontiguousarray(P), np.ascontiguousarray(pts), np.ascontiguousarray(tang),
+                  np.ascontiguousarray(nrm), np.ascontiguousarray(W, dtype=np.float64),
+                  np.ascontiguousarray(H, dtype=np.float64), bool(closed), inside, fibre)
+    fibre[~inside] = 0.0
     return inside, fibre
 
 

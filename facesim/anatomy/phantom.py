@@ -299,6 +299,10 @@ DEPTH_LANDMARKS = [
     ("gonion_R", (-47, -58, -5), (-0.8, -0.5, -0.3), 15.0, (14.0, 16.0)),
 ]
 
+#: Local skin offsets (mm, + outward) at landmarks, Gaussian of DEPTH_CORRECTION_SIGMA mm.
+DEPTH_CORRECTIONS = {"glabella": -1.3, "nasion": 0.75, "labrale_inferius": -1.1, "pogonion": 0.6}
+DEPTH_CORRECTION_SIGMA = 6.0
+
 #: Extra depth controls that shape the rest of the head (no published range checked).
 DEPTH_CONTROLS = [
     ((0, 80, 72), (0, 0.3, 1), 5.0), ((32, 72, 62), (0.5, 0.3, 1), 5.0), ((-32, 72, 62), (-0.5, 0.3, 1), 5.0),
@@ -361,6 +365,15 @@ def skin_field(g: sdf.Grid, sub: Subject, bone_and_eyes_exact: np.ndarray) -> np
     d = sdf.smooth_union(d, neck, 14.0)
     # the neck runs on below the cut (NECK_CUT_Y) so the cut meets it at a clean right angle
     d = sdf.smooth_intersect(d, sdf.halfspace(x, y, z, S([0, NECK_CUT_Y - 6.0, 0]), [0, -1, 0]), 3.0)
+    # local corrections where the blend, the closed bone support and the nose and lip shapes
+    # leave a landmark's depth outside its published range (tuned by measuring the field)
+    for name, p, n, dep, _ in DEPTH_LANDMARKS:
+        corr = DEPTH_CORRECTIONS.get(name, 0.0)
+        if corr:
+            n = np.asarray(n, float) / np.linalg.norm(n)
+            c = S(p) + dep * sub.tissue * n
+            r2 = (x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2
+            d = d - np.float32(corr * sub.tissue) * np.exp(-r2 / np.float32(2 * DEPTH_CORRECTION_SIGMA ** 2))
     d = ndimage.gaussian_filter(d, 1.5 / g.h)
     return d.astype(np.float32)
 

