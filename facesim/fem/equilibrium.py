@@ -83,6 +83,42 @@ class FaceSimulator:
         self.muscle = MuscleTerm(self.rest, mus.tet, mus.muscle, mus.fraction, mus.fibre, mus.sigma_max, gain=gain,
                                  elems=self.elems)
         self.linear = make_linear_solver(self.options.newton.linear_solver)
+        self._laplace = None
+
+    def _harmonic(self):
+        """Factorised graph Laplacian of the simulated mesh (edge weights 1/length), free x fixed split."""
+        if self._laplace is None:
+            import scipy.sparse as sp
+            import scipy.sparse.linalg as spla
+
+            T = self.rest.tets[self.elems]
+            e = np.sort(T[:, [0, 1, 0, 2, 0, 3, 1, 2, 1, 3, 2, 3]].reshape(-1, 2), axis=1)
+            e = np.unique(e, axis=0)
+            w = 1.0 / np.maximum(np.linalg.norm(self.model.X[e[:, 0]] - self.model.X[e[:, 1]], axis=1), 1e-9)
+            n = self.model.n_nodes
+            W = sp.coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+            L = (sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W).tocsr()
+            free = np.flatnonzero(~self.fixed.all(axis=1))
+            fixed = np.flatnonzero(self.fixed.all(axis=1))
+            Lff = L[free][:, free].tocsc()
+            Lff = Lff + sp.diags(np.where(np.asarray(Lff.diagonal()) == 0, 1.0, 0.0))   # isolated nodes
+            self._laplace = (free, fixed, spla.splu(Lff), L[free][:, fixed].tocsr())
+        return self._laplace
+
+    def predict(self, controls: Controls, x=None) -> np.ndarray:
+        """Starting guess: ``x`` (default: the rest shape moved with the skull) with the bones placed
+        and their displacement carried into the free flesh by harmonic interpolation, so a large
+        bone motion does not start Newton from crushed elements next to the bone."""
+        base = self.attached_positions(Controls(controls.a, None, controls.head), x) if x is None else \
+            np.array(x, dtype=np.float64)
+        target = self.attached_positions(controls, base)
+        free, fixed, lu, Lfc = self._harmonic()
+        d = target[fixed] - base[fixed]
+        if not np.any(d):
+            return target
+        out = target.copy()
+        out[free] = base[free] + lu.solve(-(Lfc @ d))
+        return out
 
     @property
     def terms(self):
@@ -135,7 +171,7 @@ class FaceSimulator:
             if x0.shape != self.model.X.shape:
                 raise FacesimError(f"x0: expected positions of shape {self.model.X.shape}, got {x0.shape}")
         scale = self.force_scale(controls)
-        prob = self.problem(controls, x0)
+        prob = self.problem(controls, self.predict(controls, x0))
         x, rep = newton(prob, newton_options or self.options.newton, scale, self.linear)
         rep.seconds["total"] = time.perf_counter() - t0
         return Equilibrium(x=x, controls=controls, report=rep)

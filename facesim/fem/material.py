@@ -88,16 +88,16 @@ class MooneyRivlin:
         Returns ``(P11, lateral_stretch)``: the lateral stretch solves ``P22 = 0`` (scalar
         Newton on the closed-form principal stresses), then P11 follows. For verification.
         """
-        from facesim._kernels.mooney import psi_derivatives
+        from facesim._kernels.mooney import PSI_WORK, psi_derivatives
 
         vol = VOLUMETRIC[self.volumetric]
-        g, H, T = np.empty(3), np.empty((3, 3)), np.empty((3, 3, 3))
+        g, H, T, work = np.empty(3), np.empty((3, 3)), np.empty((3, 3, 3)), np.empty(PSI_WORK)
         lat = 1.0
         for _ in range(100):
-            psi_derivatives(np.array([stretch, lat, lat]), self.c10, self.c01, self.kappa, vol, g, H, T)
+            psi_derivatives(np.array([stretch, lat, lat]), self.c10, self.c01, self.kappa, vol, False, g, H, T, work)
             step = g[1] / (H[1, 1] + H[1, 2])
             lat -= step
             if abs(step) < 1e-15:
                 break
-        psi_derivatives(np.array([stretch, lat, lat]), self.c10, self.c01, self.kappa, vol, g, H, T)
+        psi_derivatives(np.array([stretch, lat, lat]), self.c10, self.c01, self.kappa, vol, False, g, H, T, work)
         return float(g[0]), float(lat)

@@ -29,9 +29,14 @@ class NewtonOptions:
     linear_solver : ``"amg"`` (pyamg + CG, default) or ``"direct"`` (SuperLU).
     linear_rtol : CG tolerance cap; each step uses ``min(linear_rtol, rel residual)`` (inexact
         Newton with a forcing term that keeps quadratic convergence).
-    project : PSD-project the element Hessians (needed for CG; the true tangent is indefinite
-        on the descending limb of the force-length curve and for inverted elements).
+    project : ``"auto"`` (default): PSD-projected element Hessians while far from equilibrium
+        (the true tangent is indefinite for compressed, inverted or over-stretched active tets),
+        then the true tangent once the relative residual is below ``true_tangent_below`` (it is
+        positive definite at a stable equilibrium and restores quadratic convergence; any
+        non-descent direction or failed line search switches back to projection). ``True``
+        always projects, ``False`` never does.
     step_fraction : fraction of the largest inversion-free step tried first.
+    min_limited_step : below this the limit is ignored and the full step is tried first.
     """
 
     rtol: float = 1e-6
@@ -39,14 +44,18 @@ class NewtonOptions:
     max_iterations: int = 60
     linear_solver: str = "amg"
     linear_rtol: float = 1e-2
-    project: bool = True
+    project: object = "auto"
+    true_tangent_below: float = 1e-2
     step_fraction: float = 0.9
+    min_limited_step: float = 0.05
     armijo: float = 1e-4
     max_backtracks: int = 30
 
     def __post_init__(self):
         if self.linear_solver not in SOLVERS:
             raise FacesimError(f"linear_solver: expected one of {SOLVERS}, got {self.linear_solver!r}")
+        if self.project not in ("auto", True, False):
+            raise FacesimError(f"project: expected 'auto', True or False, got {self.project!r}")
         if not (self.rtol >= 0 and self.atol >= 0 and self.max_iterations >= 1):
             raise FacesimError("NewtonOptions: rtol, atol must be >= 0 and max_iterations >= 1")
 
@@ -60,6 +69,7 @@ class SolveReport:
     residuals: list = field(default_factory=list)
     energies: list = field(default_factory=list)
     step_lengths: list = field(default_factory=list)
+    projected: list = field(default_factory=list)
     linear_iterations: list = field(default_factory=list)
     force_scale: float = 1.0
     seconds: dict = field(default_factory=dict)
@@ -72,6 +82,7 @@ class SolveReport:
         return {"converged": self.converged, "iterations": self.iterations,
                 "relative_residual": self.relative_residual, "residuals": list(map(float, self.residuals)),
                 "energies": list(map(float, self.energies)), "step_lengths": list(map(float, self.step_lengths)),
+                "projected": list(map(bool, self.projected)),
                 "linear_iterations": list(map(int, self.linear_iterations)), "force_scale": self.force_scale,
                 "seconds": {k: round(v, 4) for k, v in self.seconds.items()}}
 
@@ -137,23 +148,38 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
     rep.residuals.append(float(np.linalg.norm(g)))
     rep.energies.append(E)
     B = None
+    allow_true = options.project == "auto"
     while rep.residuals[-1] > tol and rep.iterations < options.max_iterations:
-        A = problem.hessian(x, options.project)
+        rel = rep.residuals[-1] / max(force_scale, 1e-300)
+        project = options.project is True or (options.project == "auto" and
+                                               not (allow_true and rel < options.true_tangent_below))
+        A = problem.hessian(x, project)
         if B is None:
             B = sysm.rigid_modes(x)
-        rel = rep.residuals[-1] / max(force_scale, 1e-300)
         n_before = len(linear.stats.iterations)
-        du = linear.solve(A, -g, B, rtol=min(options.linear_rtol, max(rel, 1e-12)))
+        try:
+            du = linear.solve(A, -g, B, rtol=min(options.linear_rtol, max(rel, 1e-12)))
+        except FacesimError:
+            if project or options.project is False:
+                raise
+            allow_true = False   # the true tangent is not SPD here: project from now on
+            continue
         rep.linear_iterations.extend(linear.stats.iterations[n_before:])
         du[~sysm.free_dof] = 0.0
         slope = float(g @ du)
-        if slope >= 0:   # not a descent direction (cannot happen with an SPD matrix); use -g
-            du = -g
+        if slope >= 0:
+            if not project and options.project == "auto":
+                allow_true = False
+                continue
+            du = -g   # cannot happen with an SPD matrix; steepest descent as a last resort
             slope = -float(g @ g)
+        # Step limiting: start where no valid tet inverts. If that is a small fraction of the step
+        # (one tet squeezed between two bones can veto any progress), start from the full step:
+        # the invertible energy is defined beyond inversion and the line search keeps it decreasing.
         limit = problem.max_step(x, du)
         alpha = 1.0 if limit >= 1.0 else options.step_fraction * limit
-        if alpha < 1e-6:
-            alpha = 1.0   # an element must invert to make progress: the invertible energy allows it
+        if alpha < options.min_limited_step:
+            alpha = 1.0
         for _ in range(options.max_backtracks):
             x_new = problem.positions(u + alpha * du)
             E_new, g_new = problem.energy_and_gradient(x_new)
@@ -161,12 +187,16 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
                 break
             alpha *= 0.5
         else:
+            if not project and options.project == "auto":
+                allow_true = False
+                continue
             rep.iterations += 1
             break   # line search failed: energy cannot decrease along du any more
         u = u + alpha * du
         x, E, g = x_new, E_new, g_new
         rep.iterations += 1
         rep.step_lengths.append(alpha)
+        rep.projected.append(project)
         rep.residuals.append(float(np.linalg.norm(g)))
         rep.energies.append(E)
     rep.converged = rep.residuals[-1] <= tol

@@ -120,7 +120,7 @@ def test_only_the_face_is_simulated_and_the_rest_is_attached(head):
     # the face region in front of the ears is simulated, the back of the head is not
     face = (c[:, 2] > 40) & (np.abs(c[:, 1]) < 90)
     assert sim[face].mean() > 0.99
-    assert not sim[c[:, 2] < -40].any()
+    assert not sim[c[:, 2] < -50].any()
     attached = np.zeros(head.n_nodes, bool)
     attached[head.cranium_nodes] = True
     attached[head.jaw_nodes] = True
@@ -174,11 +174,12 @@ def test_embedding_and_binding_are_deterministic(head):
 
 
 @pytest.mark.slow
-def test_rebuild_from_the_shipped_mesh_reproduces_the_model(head):
+def test_rebuild_from_the_shipped_mesh_reproduces_the_model(head, tmp_path):
     """``model build --mesh-from``: everything but fTetWild is deterministic (about 3 minutes)."""
     from facesim.anatomy import build_head
 
-    m = build_head(head.meta["resolution"], seed=head.meta["seed"], mesh=(head.X, head.tets))
+    built = build_head(head.meta["resolution"], seed=head.meta["seed"], mesh=(head.X, head.tets))
+    m = load_model(built.save(tmp_path / "again.npz"))   # compare as stored (some fields are float32)
     for name in ("X", "tets", "tissue", "simulated", "cranium_nodes", "jaw_nodes", "skin", "lip_upper", "lip_lower"):
         assert np.array_equal(getattr(m, name), getattr(head, name)), name
     assert np.array_equal(m.muscles.fraction, head.muscles.fraction)

@@ -1,0 +1,122 @@
+"""Mooney-Rivlin in batches: closed forms, a plain-numpy oracle, derivatives, invariance."""
+
+import numpy as np
+import pytest
+
+from facesim._kernels.svd3 import SVD_WORK, svd3
+from facesim.errors import FacesimError
+from facesim.fem import MooneyRivlin
+
+
+def numpy_mooney_rivlin(F, c10, c01, kappa, volumetric):
+    """Oracle from the invariants (valid for det F > 0): psi and P (PHYSICS.md section 1)."""
+    C = np.einsum("kji,kjl->kil", F, F)
+    I1 = np.trace(C, axis1=1, axis2=2)
+    I2 = 0.5 * (I1 ** 2 - np.einsum("kij,kji->k", C, C))
+    J = np.linalg.det(F)
+    Finv_T = np.linalg.inv(F).transpose(0, 2, 1)
+    if volumetric == "log":
+        U, dU = 0.5 * kappa * np.log(J) ** 2, kappa * np.log(J) / J
+    else:
+        U, dU = 0.5 * kappa * (J - 1) ** 2, kappa * (J - 1)
+    psi = c10 * (J ** (-2 / 3) * I1 - 3) + c01 * (J ** (-4 / 3) * I2 - 3) + U
+    FC = np.einsum("kij,kjl->kil", F, C)
+    P = (2 * c10 * J[:, None, None] ** (-2 / 3) * (F - I1[:, None, None] / 3 * Finv_T)
+         + 2 * c01 * J[:, None, None] ** (-4 / 3) * (I1[:, None, None] * F - FC - 2 / 3 * I2[:, None, None] * Finv_T)
+         + (dU * J)[:, None, None] * Finv_T)
+    return psi, P
+
+
+@pytest.fixture
+def states():
+    rng = np.random.default_rng(7)
+    F = np.eye(3) + 0.35 * rng.normal(size=(300, 3, 3))
+    return F
+
+
+@pytest.mark.parametrize("volumetric", ["log", "quadratic"])
+def test_kernel_matches_numpy_oracle(states, volumetric):
+    mat = MooneyRivlin(0.06, 0.02, 3.0, volumetric)
+    ok = np.linalg.svd(states, compute_uv=False).min(axis=1) > mat.clamp
+    ok &= np.linalg.det(states) > 0
+    assert ok.sum() > 100
+    psi, P = numpy_mooney_rivlin(states[ok], mat.c10, mat.c01, mat.kappa, volumetric)
+    np.testing.assert_allclose(mat.energy_density(states[ok]), psi, rtol=1e-11, atol=1e-13)
+    np.testing.assert_allclose(mat.first_piola(states[ok]), P, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("volumetric", ["log", "quadratic"])
+def test_stress_and_tangent_against_central_differences_including_inverted(states, volumetric):
+    mat = MooneyRivlin(6e-3, 2e-3, 0.4, volumetric)
+    assert (np.linalg.det(states) < 0).sum() >= 5
+    P = mat.first_piola(states)
+    D = mat.tangent(states)
+    assert np.linalg.norm(P) > 0 and np.linalg.norm(D) > 0
+    h = 1e-6
+    Pn = np.zeros_like(P)
+    Dn = np.zeros_like(D)
+    for r in range(9):
+        E = np.zeros(9)
+        E[r] = h
+        E = E.reshape(3, 3)
+        Pn[:, r // 3, r % 3] = (mat.energy_density(states + E) - mat.energy_density(states - E)) / (2 * h)
+        Dn[:, :, r] = (mat.first_piola(states + E) - mat.first_piola(states - E)).reshape(-1, 9) / (2 * h)
+    err_P = np.linalg.norm(P - Pn, axis=(1, 2)) / np.linalg.norm(P, axis=(1, 2))
+    err_D = np.linalg.norm(D - Dn, axis=(1, 2)) / np.linalg.norm(D, axis=(1, 2))
+    assert err_P.max() < 1e-5
+    assert err_D.max() < 1e-5
+
+
+def test_projected_tangent_is_psd_and_equal_where_already_psd(states):
+    mat = MooneyRivlin(6e-3, 2e-3, 0.4)
+    D = mat.tangent(states)
+    Dp = mat.tangent(states, project=True)
+    eig = np.linalg.eigvalsh(0.5 * (Dp + Dp.transpose(0, 2, 1)))
+    assert eig.min() > -1e-12 * np.abs(eig).max()
+    psd = np.linalg.eigvalsh(D).min(axis=1) >= 0
+    assert psd.any() and (~psd).any()
+    np.testing.assert_allclose(Dp[psd], D[psd], atol=1e-12)
+
+
+def test_rest_state_is_stress_free_and_rotation_invariant(states):
+    mat = MooneyRivlin(6e-3, 2e-3, 0.4)
+    assert abs(mat.energy_density(np.eye(3))) < 1e-15
+    np.testing.assert_allclose(mat.first_piola(np.eye(3)), 0, atol=1e-15)
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.random(len(states), random_state=3).as_matrix()
+    np.testing.assert_allclose(mat.energy_density(R @ states), mat.energy_density(states), rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(mat.first_piola(R @ states), R @ mat.first_piola(states), rtol=1e-8, atol=1e-13)
+    # small-strain limit: shear modulus 2 (c10 + c01)
+    g = 1e-6
+    F = np.eye(3)
+    F[0, 1] = g
+    assert mat.first_piola(F)[0, 1] / g == pytest.approx(mat.shear_modulus, rel=1e-5)
+
+
+def test_inverted_elements_push_back(states):
+    mat = MooneyRivlin(6e-3, 2e-3, 0.4)
+    F = np.diag([1.0, 1.0, -0.5])
+    P = mat.first_piola(F)
+    assert np.isfinite(mat.energy_density(F)) and mat.energy_density(F) > mat.energy_density(np.eye(3))
+    assert P[2, 2] < 0   # energy decreases as F33 grows back toward positive
+
+
+def test_signed_svd_matches_numpy(states):
+    U, s, V = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
+    work = np.empty(SVD_WORK)
+    for F in states[:100]:
+        svd3(F, U, s, V, work)
+        np.testing.assert_allclose(U @ np.diag(s) @ V.T, F, atol=1e-12)
+        assert np.linalg.det(U) == pytest.approx(1.0) and np.linalg.det(V) == pytest.approx(1.0)
+        np.testing.assert_allclose(np.abs(s), np.linalg.svd(F, compute_uv=False), rtol=1e-10, atol=1e-13)
+        assert (s[2] < 0) == (np.linalg.det(F) < 0)
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(FacesimError, match="volumetric"):
+        MooneyRivlin(1, 1, 1, "cubic")
+    with pytest.raises(FacesimError, match="c10"):
+        MooneyRivlin(-1, 1, 1)
+    with pytest.raises(FacesimError, match="shape"):
+        MooneyRivlin(1, 1, 1).energy_density(np.eye(4))

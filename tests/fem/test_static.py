@@ -1,0 +1,174 @@
+"""solve_static on boxes: patch test, uniaxial tension (closed form), fibre force-length,
+recovery from inverted elements, quadratic convergence, input checks."""
+
+import numpy as np
+import pytest
+
+from facesim._kernels.fibre import active_curve
+from facesim.errors import FacesimError
+from facesim.fem import ElasticTerm, MooneyRivlin, MuscleTerm, NewtonOptions, RestShape, box_mesh, solve_static
+from facesim.fem.newton import Problem, newton
+from facesim.fem.system import DofSystem
+from tests.fem.conftest import inverted_count
+
+MAT = MooneyRivlin(6e-3, 2e-3, 0.4)
+L = 10.0
+
+
+def _rollers(X, stretch):
+    """Uniaxial tension along x: symmetry rollers on x=0, y=0, z=0; x=L pulled to stretch*L."""
+    fixed = np.zeros((len(X), 3), bool)
+    for k in range(3):
+        fixed[X[:, k] < 1e-9, k] = True
+    right = X[:, 0] > L - 1e-9
+    fixed[right, 0] = True
+    xp = X.copy()
+    xp[right, 0] = stretch * L
+    return fixed, xp, right
+
+
+@pytest.mark.parametrize("solver", ["direct", "amg"])
+def test_patch_test_affine_field_is_an_equilibrium(solver):
+    X, T = box_mesh((L, L, L), (3, 3, 3))
+    A = np.array([[1.1, 0.05, -0.02], [0.03, 0.95, 0.04], [-0.01, 0.02, 1.05]])
+    boundary = np.flatnonzero(np.any((X < 1e-9) | (X > L - 1e-9), axis=1))
+    interior = np.setdiff1d(np.arange(len(X)), boundary)
+    assert len(interior) == 8
+    y = X @ A.T
+    # the affine field has uniform F = A and no residual at interior nodes ...
+    rest = RestShape(X, T)
+    F = np.stack([y[T[:, j]] - y[T[:, 0]] for j in (1, 2, 3)], -1) @ rest.Bm
+    np.testing.assert_allclose(F, np.broadcast_to(A, F.shape), atol=1e-13)
+    g = ElasticTerm(rest, MAT.c10, MAT.c01, MAT.kappa).gradient(y)
+    assert np.abs(g[interior]).max() < 1e-12 * np.abs(g[boundary]).max()
+    # ... and the solver finds it from a perturbed start
+    x0 = y + 0.3 * np.random.default_rng(0).normal(size=y.shape)
+    x, rep = solve_static(X, T, MAT, boundary, y[boundary], x0=x0,
+                          options=NewtonOptions(linear_solver=solver, rtol=1e-10))
+    assert rep.converged
+    np.testing.assert_allclose(x, y, atol=1e-8)
+
+
+@pytest.mark.parametrize("volumetric", ["log", "quadratic"])
+def test_uniaxial_stretch_matches_the_closed_form(volumetric):
+    mat = MooneyRivlin(6e-3, 2e-3, 0.4, volumetric)
+    X, T = box_mesh((L, L, L), (3, 3, 3))
+    for stretch in (0.8, 1.3):
+        fixed, xp, right = _rollers(X, stretch)
+        x, rep = solve_static(X, T, mat, fixed, xp, options=NewtonOptions(linear_solver="direct", rtol=1e-12))
+        assert rep.converged
+        g = ElasticTerm(RestShape(X, T), mat.c10, mat.c01, mat.kappa, volumetric=volumetric).gradient(x)
+        P11 = g[right, 0].sum() / L ** 2          # reaction / reference area: nominal stress
+        P_exact, lateral = mat.uniaxial_nominal_stress(stretch)
+        assert abs(P11) > 1e-4
+        assert P11 == pytest.approx(P_exact, rel=1e-6)
+        assert x[:, 1].max() / L == pytest.approx(lateral, rel=1e-8)   # homogeneous lateral contraction
+
+
+@pytest.mark.parametrize("stretch", [1.0, 0.85, 1.5])
+def test_fibre_block_reaction_is_sigma_max_times_force_length(stretch):
+    """Fibres along x, activation 1, held at stretch: active reaction = sigma_max f_L(stretch) A.
+
+    (On the descending limb between about 1.05 and 1.4 an active fibre softens faster than this
+    flesh stiffens: the homogeneous state is unstable and the block necks, as real muscle would;
+    the curve there is checked on prescribed homogeneous states below.)"""
+    X, T = box_mesh((L, L, L), (2, 2, 2))
+    rest = RestShape(X, T)
+    sigma = 0.2
+    muscle = MuscleTerm(rest, np.arange(len(T)), np.zeros(len(T), int), np.ones(len(T)),
+                        np.tile([1.0, 0.0, 0.0], (len(T), 1)), np.array([sigma]))
+    flesh = ElasticTerm(rest, MAT.c10, MAT.c01, MAT.kappa)
+    fixed, xp, right = _rollers(X, stretch)
+    reactions = []
+    for a in (0.0, 1.0):
+        sysm = DofSystem(T, len(X), fixed, np.arange(len(T)))
+        x, rep = newton(Problem([flesh, muscle], sysm, xp, np.array([a])),
+                        NewtonOptions(linear_solver="direct", rtol=1e-12), force_scale=1.0)
+        assert rep.converged
+        reactions.append(muscle.gradient(x, np.array([a]))[right, 0].sum() + flesh.gradient(x)[right, 0].sum())
+    active = (reactions[1] - reactions[0]) / L ** 2
+    expected = sigma * active_curve(stretch - 1.0)[0]
+    assert active == pytest.approx(expected, rel=1e-8, abs=1e-12)
+    if stretch == 1.0:
+        assert active == pytest.approx(sigma, rel=1e-10)
+
+
+def test_fibre_force_length_curve_on_homogeneous_states():
+    X, T = box_mesh((L, L, L), (2, 2, 2))
+    rest = RestShape(X, T)
+    sigma = 0.15
+    muscle = MuscleTerm(rest, np.arange(len(T)), np.zeros(len(T), int), np.full(len(T), 0.5),
+                        np.tile([1.0, 0.0, 0.0], (len(T), 1)), np.array([sigma]))
+    right = X[:, 0] > L - 1e-9
+    for stretch in np.linspace(0.3, 1.7, 15):
+        x = X * np.array([stretch, 1.0, 1.0])
+        active = (muscle.gradient(x, np.array([1.0])) - muscle.gradient(x, np.array([0.0])))[right, 0].sum() / L ** 2
+        assert active == pytest.approx(0.5 * sigma * active_curve(stretch - 1.0)[0], rel=1e-10, abs=1e-14)
+
+
+def test_ten_percent_inverted_elements_recover():
+    X, T = box_mesh((L, L, L), (5, 5, 5))
+    rest = RestShape(X, T)
+    boundary = np.flatnonzero(np.any((X < 1e-9) | (X > L - 1e-9), axis=1))
+    interior = np.setdiff1d(np.arange(len(X)), boundary)
+    rng = np.random.default_rng(3)
+    x0 = X.copy()
+    moved = rng.choice(interior, 12, replace=False)
+    x0[moved] += rng.normal(size=(12, 3)) * 3.5
+    frac = inverted_count(rest, x0) / len(T)
+    assert frac >= 0.1
+    x, rep = solve_static(X, T, MAT, boundary, X[boundary], x0=x0, options=NewtonOptions(rtol=1e-10))
+    assert rep.converged
+    assert inverted_count(rest, x) == 0
+    np.testing.assert_allclose(x, X, atol=1e-6)
+
+
+def test_newton_converges_quadratically_near_the_solution():
+    X, T = box_mesh((L, L, L), (3, 3, 3))
+    fixed, xp, _ = _rollers(X, 1.4)
+    x, rep = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(linear_solver="direct", rtol=1e-13))
+    r = np.array(rep.residuals)
+    r = r[(r < 1e-1 * r[0]) & (r > 1e-13 * r[0])]
+    assert len(r) >= 3
+    # log r_{k+1} = p log r_k + c: p is the order of convergence
+    p = np.polyfit(np.log(r[:-1]), np.log(r[1:]), 1)[0]
+    assert p > 1.8, (p, r)
+
+
+def test_true_tangent_near_equilibrium_keeps_amg_newton_fast():
+    X, T = box_mesh((L, L, L), (3, 3, 3))
+    fixed, xp, _ = _rollers(X, 0.7)
+    _, auto = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(rtol=1e-10))
+    _, projected = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(rtol=1e-10, project=True))
+    assert auto.converged and projected.converged
+    assert auto.iterations <= projected.iterations
+    assert any(auto.projected) and not all(auto.projected)
+
+
+def test_index_and_mask_forms_of_fixed_agree():
+    X, T = box_mesh((L, L, L), (2, 2, 2))
+    idx = np.flatnonzero(X[:, 2] < 1e-9)
+    top = np.flatnonzero(X[:, 2] > L - 1e-9)
+    fixed_idx = np.r_[idx, top]
+    pos = X[fixed_idx].copy()
+    pos[len(idx):, 2] += 2.0
+    x1, r1 = solve_static(X, T, MAT, fixed_idx, pos)
+    mask = np.zeros((len(X), 3), bool)
+    mask[fixed_idx] = True
+    full = X.copy()
+    full[fixed_idx] = pos
+    x2, r2 = solve_static(X, T, MAT, mask, full)
+    assert r1.converged and r2.converged
+    np.testing.assert_allclose(x1, x2, atol=1e-8)
+
+
+def test_bad_inputs_give_clear_errors():
+    X, T = box_mesh((1, 1, 1), (1, 1, 1))
+    with pytest.raises(FacesimError, match="fixed_positions"):
+        solve_static(X, T, MAT, [0, 1], np.zeros((3, 3)))
+    with pytest.raises(FacesimError, match="indices"):
+        solve_static(X, T, MAT, [99], np.zeros((1, 3)))
+    with pytest.raises(FacesimError, match="rest volumes"):
+        solve_static(X, T[:, [0, 2, 1, 3]], MAT, [0], X[:1])
+    with pytest.raises(FacesimError, match="linear_solver"):
+        NewtonOptions(linear_solver="magic")

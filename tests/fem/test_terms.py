@@ -1,0 +1,188 @@
+"""Flesh and muscle terms: derivatives, numpy oracles for the kernels, assembly, force columns."""
+
+import numpy as np
+import pytest
+
+from facesim._kernels.fibre import active_curve, passive_curve
+from facesim.fem import DofSystem, ElasticTerm, MuscleTerm
+from tests.fem.conftest import inverted_count, random_unit
+from tests.fem.test_material import numpy_mooney_rivlin
+
+
+def _terms(rest, volumetric="log", seed=1):
+    rng = np.random.default_rng(seed)
+    m = len(rest.tets)
+    el = ElasticTerm(rest, 6e-3 * (1 + rng.random(m)), 2e-3 * (1 + rng.random(m)), 0.4 * (1 + rng.random(m)),
+                     volumetric=volumetric)
+    k = 60
+    mu = MuscleTerm(rest, rng.integers(0, m, k), rng.integers(0, 3, k), rng.uniform(0.2, 1.0, k),
+                    random_unit(rng, k), np.array([0.1, 0.2, 0.15]), gain=np.array([1.0, 1.5, 0.7]))
+    return el, mu
+
+
+def _deformed(X, rest, scale, seed):
+    x = X + scale * np.random.default_rng(seed).normal(size=X.shape)
+    return x, inverted_count(rest, x)
+
+
+def _fd_gradient(term, x, a, h=1e-6):
+    g = np.zeros_like(x)
+    for i in range(len(x)):
+        for k in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[i, k] += h
+            xm[i, k] -= h
+            g[i, k] = (term.energy(xp, a) - term.energy(xm, a)) / (2 * h)
+    return g
+
+
+def _fd_hessian(term, x, a, h=1e-6):
+    n = x.size
+    H = np.zeros((n, n))
+    for i in range(len(x)):
+        for k in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[i, k] += h
+            xm[i, k] -= h
+            H[:, 3 * i + k] = (term.gradient(xp, a) - term.gradient(xm, a)).ravel() / (2 * h)
+    return H
+
+
+def _assembled(term, x, a, rest, project):
+    sysm = DofSystem(rest.tets, len(x), np.zeros((len(x), 3), bool), np.arange(len(rest.tets)))
+    data = sysm.new_data()
+    term.add_hessian(x, a, sysm, data, project)
+    return sysm.matrix(data).toarray()
+
+
+@pytest.mark.parametrize("volumetric", ["log", "quadratic"])
+@pytest.mark.parametrize("which", ["elastic", "muscle"])
+def test_gradient_and_hessian_against_central_differences(small_block, volumetric, which):
+    X, T, rest = small_block
+    el, mu = _terms(rest, volumetric)
+    term = el if which == "elastic" else mu
+    a = np.array([0.3, 1.0, 0.0])
+    x, n_inv = _deformed(X, rest, 1.5, 2)
+    assert n_inv >= 3   # inverted elements included
+    g = term.gradient(x, a)
+    H = _assembled(term, x, a, rest, project=False)
+    assert np.linalg.norm(g) > 1e-3 and np.linalg.norm(H) > 1e-3
+    gn = _fd_gradient(term, x, a)
+    assert np.linalg.norm(g - gn) / np.linalg.norm(g) < 1e-5
+    Hn = _fd_hessian(term, x, a)
+    assert np.linalg.norm(H - Hn) / np.linalg.norm(H) < 1e-5
+    np.testing.assert_allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+    Hp = _assembled(term, x, a, rest, project=True)
+    assert np.linalg.eigvalsh(Hp).min() > -1e-10 * np.abs(Hp).max()
+
+
+def test_energy_and_forces_are_invariant_under_rigid_motion(small_block):
+    from scipy.spatial.transform import Rotation
+
+    X, T, rest = small_block
+    el, mu = _terms(rest)
+    a = np.array([0.5, 0.2, 0.9])
+    x, _ = _deformed(X, rest, 0.4, 5)
+    R = Rotation.from_rotvec([0.3, -1.1, 0.7]).as_matrix()
+    y = x @ R.T + np.array([5.0, -3.0, 2.0])
+    for term in (el, mu):
+        assert term.energy(y, a) == pytest.approx(term.energy(x, a), rel=1e-11)
+        np.testing.assert_allclose(term.gradient(y, a), term.gradient(x, a) @ R.T, atol=1e-10)
+        g = term.gradient(x, a)
+        assert np.abs(g.sum(axis=0)).max() < 1e-10 * np.abs(g).max() * len(x)   # no net force
+        assert np.abs(np.cross(x, g).sum(axis=0)).max() < 1e-9 * np.abs(g).max() * len(x)   # no net torque
+
+
+def test_element_kernels_match_numpy_oracle(small_block):
+    X, T, rest = small_block
+    el, mu = _terms(rest)
+    x, n_inv = _deformed(X, rest, 0.3, 9)
+    assert n_inv == 0
+    Ds = np.stack([x[T[:, j]] - x[T[:, 0]] for j in (1, 2, 3)], axis=-1)
+    F = Ds @ rest.Bm
+    # flesh: element gradients V0 P b_a scattered with np.add.at
+    psi = np.array([numpy_mooney_rivlin(F[e:e + 1], el.c10[e], el.c01[e], el.kappa[e], "log")[0][0]
+                    for e in range(len(T))])
+    P = np.concatenate([numpy_mooney_rivlin(F[e:e + 1], el.c10[e], el.c01[e], el.kappa[e], "log")[1]
+                        for e in range(len(T))])
+    b = np.concatenate([-rest.Bm.sum(axis=1, keepdims=True), rest.Bm], axis=1)   # (m, 4, 3)
+    ge = rest.V0[:, None, None] * np.einsum("mkl,mal->mak", P, b)
+    g = np.zeros_like(x)
+    np.add.at(g, T, ge)
+    assert el.energy(x) == pytest.approx((rest.V0 * psi).sum(), rel=1e-11)
+    np.testing.assert_allclose(el.gradient(x), g, rtol=1e-9, atol=1e-12)
+    # fibres: T = sigma rho [f_P + a g f_L], P_f = (T / lam) (F d) (x) d
+    a = np.array([0.2, 0.7, 1.0])
+    gm = np.zeros_like(x)
+    energy = 0.0
+    for j in range(len(mu.tet)):
+        e, m, d = mu.tet[j], mu.muscle[j], mu.fibre[j]
+        fd = F[e] @ d
+        lam = np.linalg.norm(fd)
+        fl, _, Fl = active_curve(lam - 1)
+        fp, _, Fp = passive_curve(lam - 1)
+        s = mu.sigma[m] * mu.fraction[j]
+        energy += rest.V0[e] * s * (Fp + a[m] * mu.gain[m] * Fl)
+        Pf = s * (fp + a[m] * mu.gain[m] * fl) / lam * np.outer(fd, d)
+        np.add.at(gm, T[e], rest.V0[e] * b[e] @ Pf.T)
+    assert mu.energy(x, a) == pytest.approx(energy, rel=1e-11)
+    np.testing.assert_allclose(mu.gradient(x, a), gm, rtol=1e-9, atol=1e-13)
+
+
+def test_assembly_equals_dense_sum_of_element_matrices(small_block):
+    X, T, rest = small_block
+    el, _ = _terms(rest)
+    x, _ = _deformed(X, rest, 0.8, 4)
+    Ke = el.element_hessians(x, project=True)
+    dofs = (3 * T[:, :, None] + np.arange(3)).reshape(len(T), 12)
+    K = np.zeros((x.size, x.size))
+    for e in range(len(T)):
+        K[np.ix_(dofs[e], dofs[e])] += Ke[e]
+    np.testing.assert_allclose(_assembled(el, x, None, rest, True), K, atol=1e-12 * np.abs(K).max())
+
+
+def test_colouring_and_dirichlet_rows(small_block):
+    X, T, rest = small_block
+    fixed = np.zeros((len(X), 3), bool)
+    fixed[X[:, 0] < 1e-9] = True          # clamped face: nodes leave the system
+    fixed[X[:, 0] > 10 - 1e-9, 1] = True  # roller: one component prescribed
+    sysm = DofSystem(T, len(X), fixed, np.arange(len(T)))
+    assert len(sysm.active) == len(X) - (X[:, 0] < 1e-9).sum()
+    for c in range(len(sysm.colour_ptr) - 1):
+        el = sysm.colour_elems[sysm.colour_ptr[c]:sysm.colour_ptr[c + 1]]
+        nodes = T[el].ravel()
+        assert len(np.unique(nodes)) == len(nodes)   # no node shared within a colour
+    assert sorted(sysm.colour_elems) == list(range(len(T)))
+    el, _ = _terms(rest)
+    data = sysm.new_data()
+    el.add_hessian(X + 0.1, None, sysm, data)
+    A = sysm.matrix(data, diag=7.0).toarray()
+    pres = ~sysm.free_dof
+    assert pres.sum() == (X[:, 0] > 10 - 1e-9).sum()
+    np.testing.assert_allclose(A[pres][:, pres], 7.0 * np.eye(pres.sum()))
+    assert np.abs(A[pres][:, ~pres]).max() == 0 and np.abs(A[~pres][:, pres]).max() == 0
+
+
+def test_force_columns_are_the_activation_derivative_of_the_force(small_block):
+    X, T, rest = small_block
+    _, mu = _terms(rest)
+    x, _ = _deformed(X, rest, 0.5, 11)
+    G = mu.force_columns(x).toarray()
+    a = np.array([0.1, 0.4, 0.8])
+    assert np.abs(G).max() > 1e-3
+    for m in range(3):
+        e = np.zeros(3)
+        e[m] = 1.0
+        df = -(mu.gradient(x, a + e) - mu.gradient(x, a)).ravel()   # force is affine in a
+        np.testing.assert_allclose(G[:, m], df, atol=1e-12)
+
+
+def test_gain_scales_only_the_active_curve(small_block):
+    X, T, rest = small_block
+    _, mu = _terms(rest)
+    x, _ = _deformed(X, rest, 0.5, 12)
+    a = np.array([1.0, 1.0, 1.0])
+    passive = mu.gradient(x, np.zeros(3))
+    active = mu.gradient(x, a) - passive
+    doubled = mu.with_gain(2 * mu.gain)
+    np.testing.assert_allclose(doubled.gradient(x, a) - passive, 2 * active, atol=1e-12)
