@@ -65,6 +65,17 @@ def _opacity(text: str) -> float:
     return v
 
 
+def _fps(text: str) -> float:
+    """argparse type for a frame rate in Hz."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = -1.0
+    if not (0.0 < v <= 10000.0):
+        raise argparse.ArgumentTypeError(f"expected a frame rate in Hz > 0, got {text!r}")
+    return v
+
+
 def _load(path):
     """load_model, with the few unreadable files it lets through also turned into one line."""
     from facesim.model import load_model
@@ -260,6 +271,37 @@ def cmd_model_render(args) -> int:
     return 0
 
 
+def cmd_simulate(args) -> int:
+    from facesim.fem.newton import NewtonOptions
+    from facesim.simulate import SimulateOptions, check_same_frames, read_activations_csv, read_jaw_csv, simulate
+
+    model = _load(args.model)
+    frames, A = read_activations_csv(args.activations, model.muscles.names)
+    T = None
+    if args.jaw:
+        jaw_frames, T = read_jaw_csv(args.jaw, model)
+        check_same_frames(args.jaw, jaw_frames, args.activations, frames)
+    options = SimulateOptions(newton=NewtonOptions(linear_solver=args.solver), fps=args.fps,
+                              render=args.render or args.video, video=args.video, view=args.view, size=args.size)
+    info = {"model": str(args.model), "activations": str(args.activations),
+            "jaw": str(args.jaw) if args.jaw else None}
+    s = simulate(model, A, args.output, frames=frames, jaw=T, options=options, resume=args.resume,
+                 overwrite=args.overwrite, progress=not args.quiet, info=info)
+    reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
+    print(f"simulated {s['frames']} frames ({s['converged']} of {s['finished_frames']} converged{reused}) in "
+          f"{s['wall_seconds']:.1f} s -> {args.output}")
+    if s.get("video_note"):
+        print(f"video: {s['video_note']}")
+    elif "video" in s["outputs"]:
+        print(f"video: {s['outputs']['video']}")
+    bad = s["unconverged_frames"]
+    if bad:
+        shown = ", ".join(map(str, bad[:10])) + (", ..." if len(bad) > 10 else "")
+        print(f"facesim: warning: {len(bad)} of {s['finished_frames']} frames did not converge (frame {shown}); "
+              f"flagged in {Path(args.output) / 'frames.csv'}, their markers written as NaN", file=sys.stderr)
+    return 0
+
+
 def cmd_demo(args) -> int:
     from tqdm import tqdm
 
@@ -378,6 +420,49 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--no-legend", action="store_true", help="no muscle legend")
     render.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     render.set_defaults(func=cmd_model_render)
+
+    simulate = commands.add_parser(
+        "simulate", help="simulate a sequence of frames from muscle activations (and jaw poses)",
+        description="Quasistatic forward simulation: for every row of the activations file, the equilibrium of "
+                    "the face under those activations and jaw pose, warm-started from the previous frame. Writes "
+                    "frame by frame into OUT/: skin/frame_KKKKK.ply (deformed skin, mm), state/frame_KKKKK.npz "
+                    "(node positions x, mm), markers.csv (frame,<name>_x,<name>_y,<name>_z, mm) and markers.trc, "
+                    "frames.csv (per frame: converged, Newton iterations, relative residual, seconds, linear "
+                    "iterations) and report.json. A frame that does not converge is flagged in frames.csv and "
+                    "report.json and its markers are written as NaN. An interrupted run loses no finished frame: "
+                    "run again with --resume to continue.",
+        epilog="Activations CSV: header 'frame,<muscle>,...' with muscle names of the model ('facesim model info' "
+               "lists them; muscles without a column stay 0), values in [0, 1], one row per frame in increasing "
+               "frame order. Jaw CSV, same frames: 'frame,rx,ry,rz,tx,ty,tz' (rotation vector in rad about the "
+               "condyle midpoint, then translation in mm) or 'frame,opening' (rad about the intercondylar axis, "
+               "positive opens the mouth).")
+    simulate.add_argument("--model", required=True, metavar="M.npz", help="model file")
+    simulate.add_argument("--activations", required=True, metavar="A.csv", help="muscle activations per frame")
+    simulate.add_argument("--jaw", metavar="J.csv", help="jaw pose per frame (default: jaw at rest)")
+    simulate.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
+    simulate.add_argument("--render", action="store_true",
+                          help="also render every frame to OUT/png/frame_KKKKK.png (off screen)")
+    simulate.add_argument("--video", action="store_true",
+                          help="also make OUT/video.mp4 of the rendered frames (implies --render; an animated "
+                               "GIF OUT/video.gif when imageio-ffmpeg is not installed)")
+    simulate.add_argument("--view", choices=tuple(VIEWS), default="front",
+                          help="camera of --render (default: %(default)s)")
+    simulate.add_argument("--size", type=_size, default=(640, 640), metavar="WxH",
+                          help="picture size of --render in pixels (default: 640x640)")
+    simulate.add_argument("--fps", type=_fps, default=30.0,
+                          help="frame rate in Hz of the TRC time column and the video (default: %(default)g)")
+    again = simulate.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true",
+                       help="continue the run in OUT_DIR after its last complete frame (frames whose activations "
+                            "or jaw pose changed since are recomputed)")
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace the results of an earlier run in OUT_DIR (without --resume or --overwrite, a "
+                            "folder holding a run is an error)")
+    simulate.add_argument("--solver", choices=("amg", "direct"), default="amg",
+                          help="linear solver of the Newton steps: algebraic multigrid + CG, or sparse LU "
+                               "(default: %(default)s)")
+    simulate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    simulate.set_defaults(func=cmd_simulate)
     return parser
 
 

@@ -15,7 +15,7 @@ from PIL import Image
 from facesim.cli import default_model_path, main
 from facesim.model import load_model
 
-from test_model import bad_model_files
+from .test_model import bad_model_files
 
 REPO = Path(__file__).resolve().parent.parent
 

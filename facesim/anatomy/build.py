@@ -26,10 +26,12 @@ RESOLUTIONS = {
     "paper": (0.8, 2.5, 7.0, 1.5e-3),
 }
 
+#: Mooney-Rivlin constants (MPa): initial shear modulus 5.4 kPa for flesh, inside the 2.5-60 kPa
+#: published for facial soft tissue (PHYSICS.md section 1), kappa / mu ~ 24 (nu ~ 0.48).
 TISSUES = (
-    Tissue("flesh", c10=6.0e-3, c01=2.0e-3, kappa=0.4),
-    Tissue("lip", c10=4.0e-3, c01=1.5e-3, kappa=0.3),
-    Tissue("nose_cartilage", c10=5.0e-2, c01=2.0e-2, kappa=3.5),
+    Tissue("flesh", c10=2.0e-3, c01=0.7e-3, kappa=0.13),
+    Tissue("lip", c10=1.5e-3, c01=0.5e-3, kappa=0.1),
+    Tissue("nose_cartilage", c10=2.0e-2, c01=0.8e-2, kappa=1.4),
 )
 FLESH, LIP, NOSE = range(3)
 

@@ -30,7 +30,7 @@ class MuscleSpec:
     depth: tuple[float, float]
     width: tuple[float, float]
     thickness: tuple[float, float]
-    sigma_max: float = 0.15
+    sigma_max: float = 0.25
     closed: bool = False
     midline: bool = False   # a single midline-crossing muscle per side is still mirrored
     ring: bool = False      # a sphincter drawn in the front view: laid along z, see ``lay_path``
@@ -48,30 +48,30 @@ def _arc(centre, a, b, t0, t1, z_drop=0.0, n=9):
 
 #: 16 left muscles; each is mirrored to the right, giving 32.
 CATALOGUE: tuple[MuscleSpec, ...] = (
-    MuscleSpec("frontalis", ((30, 100, 40), (30, 80, 70), (28, 55, 84)), (3.5, 3.0), (14, 12), (1.8, 1.8), 0.10),
-    MuscleSpec("corrugator_supercilii", ((10, 42, 82), (20, 46, 84), (30, 48, 82)), (6.0, 4.0), (3.5, 3.0), (2.0, 2.0), 0.12),
+    MuscleSpec("frontalis", ((30, 100, 40), (30, 80, 70), (28, 55, 84)), (3.5, 3.0), (14, 12), (1.8, 1.8), 0.20),
+    MuscleSpec("corrugator_supercilii", ((10, 42, 82), (20, 46, 84), (30, 48, 82)), (6.0, 4.0), (3.5, 3.0), (2.0, 2.0), 0.22),
     # a slip from the nasal bones to the glabella skin, 6-7 mm wide; with its twin a strip ~15 mm wide
-    MuscleSpec("procerus", ((4, 25, 92), (4, 35, 90), (4, 45, 88)), (3.0, 3.5), (3.0, 3.5), (1.5, 1.5), 0.10),
+    MuscleSpec("procerus", ((4, 25, 92), (4, 35, 90), (4, 45, 88)), (3.0, 3.5), (3.0, 3.5), (1.5, 1.5), 0.20),
     MuscleSpec("orbicularis_oculi", _arc((32, 27, 70), 24, 20, 0, 360, z_drop=8, n=25), (2.5, 2.5), (6.0, 6.0),
-               (1.6, 1.6), 0.10, closed=True, ring=True),
+               (1.6, 1.6), 0.20, closed=True, ring=True),
     MuscleSpec("levator_labii_superioris_alaeque_nasi", ((14, 30, 84), (15, 10, 94), (16, -14, 100)), (4.0, 3.5),
-               (3.0, 3.5), (2.0, 2.0), 0.15),
+               (3.0, 3.5), (2.0, 2.0), 0.25),
     MuscleSpec("levator_labii_superioris", ((28, 10, 80), (22, -8, 90), (15, -28, 96)), (5.0, 4.0), (5.0, 4.0),
-               (2.2, 2.2), 0.15),
-    MuscleSpec("zygomaticus_minor", ((40, 4, 78), (30, -12, 88), (19, -29, 95)), (5.0, 4.0), (3.0, 3.0), (2.0, 2.0), 0.15),
-    MuscleSpec("zygomaticus_major", ((55, 4, 58), (46, -18, 72), (33, -38, 84)), (6.0, 4.5), (4.0, 3.5), (2.5, 2.5), 0.20),
-    MuscleSpec("levator_anguli_oris", ((20, -8, 84), (26, -22, 86), (31, -37, 86)), (8.0, 5.0), (4.0, 3.5), (2.5, 2.5), 0.15),
-    MuscleSpec("risorius", ((60, -36, 38), (48, -38, 64), (33, -40, 84)), (4.0, 3.5), (4.5, 3.0), (1.8, 1.8), 0.12),
-    MuscleSpec("buccinator", ((40, -36, 38), (37, -38, 60), (30, -40, 80)), (10.0, 7.0), (8.0, 5.0), (2.5, 2.5), 0.15),
+               (2.2, 2.2), 0.25),
+    MuscleSpec("zygomaticus_minor", ((40, 4, 78), (30, -12, 88), (19, -29, 95)), (5.0, 4.0), (3.0, 3.0), (2.0, 2.0), 0.25),
+    MuscleSpec("zygomaticus_major", ((55, 4, 58), (46, -18, 72), (33, -38, 84)), (6.0, 4.5), (4.0, 3.5), (2.5, 2.5), 0.30),
+    MuscleSpec("levator_anguli_oris", ((20, -8, 84), (26, -22, 86), (31, -37, 86)), (8.0, 5.0), (4.0, 3.5), (2.5, 2.5), 0.25),
+    MuscleSpec("risorius", ((60, -36, 38), (48, -38, 64), (33, -40, 84)), (4.0, 3.5), (4.5, 3.0), (1.8, 1.8), 0.22),
+    MuscleSpec("buccinator", ((40, -36, 38), (37, -38, 60), (30, -40, 80)), (10.0, 7.0), (8.0, 5.0), (2.5, 2.5), 0.25),
     MuscleSpec("depressor_anguli_oris", ((38, -78, 60), (36, -60, 74), (32, -44, 84)), (4.0, 4.0), (6.0, 3.5),
-               (2.2, 2.2), 0.15),
+               (2.2, 2.2), 0.25),
     MuscleSpec("depressor_labii_inferioris", ((18, -74, 76), (15, -60, 86), (11, -48, 94)), (5.0, 4.5), (5.5, 4.5),
-               (2.2, 2.2), 0.15),
-    MuscleSpec("mentalis", ((6, -58, 82), (6, -70, 88), (6, -80, 90)), (6.0, 4.0), (4.5, 4.5), (2.5, 2.5), 0.12),
+               (2.2, 2.2), 0.25),
+    MuscleSpec("mentalis", ((6, -58, 82), (6, -70, 88), (6, -80, 90)), (6.0, 4.0), (4.5, 4.5), (2.5, 2.5), 0.22),
     MuscleSpec("orbicularis_oris_upper", _arc((0, -40, 96), 26, 12, 0, 90, z_drop=8), (4.5, 4.5), (3.5, 4.0), (3.0, 3.0),
-               0.20, ring=True),
+               0.30, ring=True),
     MuscleSpec("orbicularis_oris_lower", _arc((0, -40, 96), 26, 12, 0, -90, z_drop=8), (4.5, 4.5), (3.5, 4.0), (3.0, 3.0),
-               0.20, ring=True),
+               0.30, ring=True),
 )
 
 

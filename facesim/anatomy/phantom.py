@@ -412,10 +412,11 @@ def deep_core(g: sdf.Grid, cranium, jaw, eyes, mouth, joint, skin, cut_y: float)
     return np.where(deep | (grown < cranium), np.minimum(grown, cranium), cranium).astype(np.float32)
 
 
-#: The simulated face region in canonical mm: in front of the ears, above the lower neck and
-#: below the upper forehead. The rest of the head (scalp, back of the head, lower neck) is
-#: meshed but not simulated: its nodes move with the cranium.
-FACE_REGION = {"z_min": -12.0, "y_min": -100.0, "y_max": 100.0}
+#: The simulated face region in canonical mm: in front of the mastoids (so the soft tissue
+#: around the ramus can follow the mandible), the whole neck stub (the chin drops by 30 mm at
+#: full opening) and below the upper forehead. The rest of the head (scalp, back of the head)
+#: is meshed but not simulated: its nodes move with the cranium.
+FACE_REGION = {"z_min": -45.0, "y_min": -200.0, "y_max": 100.0}
 
 
 def neck_cut(g: sdf.Grid, sub: Subject) -> np.ndarray:

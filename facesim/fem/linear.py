@@ -34,7 +34,9 @@ class LinearStats:
 class AMGSolver:
     """CG preconditioned by a reusable pyamg smoothed-aggregation hierarchy."""
 
-    def __init__(self, maxiter: int = 500, rebuild_factor: float = 2.0, smooth: str = "energy"):
+    def __init__(self, maxiter: int = 500, rebuild_factor: float = 2.0, smooth: str = "energy",
+                 direct_below: int = 3000):
+        self.direct_below = int(direct_below)   # tiny systems: a sparse LU beats any hierarchy
         self.maxiter = int(maxiter)
         self.rebuild_factor = float(rebuild_factor)
         self.smooth = smooth
@@ -46,7 +48,9 @@ class AMGSolver:
         import pyamg
 
         t = time.perf_counter()
-        self.ml = pyamg.smoothed_aggregation_solver(A, B=B, smooth=self.smooth, max_coarse=300)
+        # coarse level by sparse LU: pyamg's default dense pinv is slow when BLAS threads compete
+        self.ml = pyamg.smoothed_aggregation_solver(A, B=B, smooth=self.smooth, max_coarse=300,
+                                                    coarse_solver="splu")
         self.base_iterations = None
         self.stats.setups += 1
         self.stats.setup_seconds += time.perf_counter() - t
@@ -63,6 +67,13 @@ class AMGSolver:
 
     def solve(self, A, b: np.ndarray, B: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
         """Solve ``A x = b`` to relative residual ``rtol``; reuse or rebuild the hierarchy."""
+        if A.shape[0] < self.direct_below:
+            t = time.perf_counter()
+            x = spla.splu(sp.csc_matrix(A)).solve(b)
+            self.stats.solves += 1
+            self.stats.iterations.append(1)
+            self.stats.solve_seconds += time.perf_counter() - t
+            return x
         if self.ml is None or self.ml.levels[0].A.shape != A.shape:
             self.setup(A, B)
         # otherwise the hierarchy of an earlier matrix preconditions this one: still SPD, and

@@ -76,7 +76,11 @@ class SolveReport:
 
     @property
     def relative_residual(self) -> float:
-        return self.residuals[-1] / self.force_scale if self.residuals else float("nan")
+        """Last residual over ``force_scale`` (0 for a problem with no load that is at rest)."""
+        if not self.residuals:
+            return float("nan")
+        r = self.residuals[-1]
+        return r / self.force_scale if self.force_scale > 0 else (0.0 if r == 0 else float("inf"))
 
     def to_dict(self) -> dict:
         return {"converged": self.converged, "iterations": self.iterations,

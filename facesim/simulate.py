@@ -1,0 +1,522 @@
+"""Forward simulation of a sequence: per-frame activations (and jaw poses) -> equilibria on disk.
+
+Each frame is a quasistatic equilibrium warm-started from the previous converged frame. Results
+are written frame by frame into ``OUT/``:
+
+* ``skin/frame_KKKKK.ply`` the skin triangles at the deformed positions (mm);
+* ``state/frame_KKKKK.npz`` ``x (n, 3) float64`` node positions (mm), the frame's controls
+  ``a (n_muscles,)`` and ``jaw (4, 4)``, ``converged`` and ``error`` (the resume warm start);
+* ``png/frame_KKKKK.png`` with ``render`` (and ``video.mp4`` or ``video.gif`` with ``video``);
+* ``markers.csv`` (``frame,<name>_x,<name>_y,<name>_z``, mm) and ``markers.trc``;
+* ``frames.csv`` the solver log, one row per frame; ``report.json`` the summary.
+
+Crash safety: per-frame files are written to a temporary file and renamed; ``frames.csv`` and
+``markers.csv`` are append-only logs, one complete line per write, flushed to disk. A frame is
+complete once its state file and both log rows exist (the ``frames.csv`` row is written last);
+``resume`` keeps the longest run of complete frames at the start of the sequence whose stored
+controls equal the inputs, redraws missing skin or PNG files of those from their state, and
+computes the rest. A frame that does not converge is kept on disk for inspection but flagged
+(``converged`` 0 in ``frames.csv``, listed in ``report.json``), its markers are written as NaN
+(missing), and the next frame starts from the last converged one.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import hashlib
+import io
+import json
+import math
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import facesim
+from facesim._csv import frame_numbers, numbers, read_table
+from facesim._files import atomic_write
+from facesim.errors import FacesimError
+from facesim.fem.newton import NewtonOptions
+from facesim.model import FaceModel
+
+FRAME_LOG_COLUMNS = ("frame", "converged", "iterations", "relative_residual", "residual_N", "seconds",
+                     "linear_iterations", "error")
+JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
+JAW_OPENING = ("opening",)
+_OUTPUT_FILES = ("markers.csv", "markers.trc", "frames.csv", "report.json", "video.mp4", "video.gif")
+_FRAME_FILE = re.compile(r"frame_\d+\.(ply|npz|png)$")
+
+
+# ------------------------------------------------------------------ inputs
+def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
+    """Read an activations CSV: header ``frame,<muscle>,...``, one row per frame, values in [0, 1].
+
+    Columns may name any subset of ``muscle_names`` in any order; muscles without a column stay
+    at 0. Returns ``frames (F,) int64`` (increasing) and ``A (F, n_muscles) float64`` in the order
+    of ``muscle_names``. Raises a one-line :class:`FacesimError` naming the file, line and
+    column for a missing or empty file, a missing ``frame`` column, an unknown muscle (with the
+    closest names), a duplicate column, a non-numeric value or one outside [0, 1].
+    """
+    muscle_names = tuple(muscle_names)
+    table = read_table(path, "activations file", example="frame," + ",".join(muscle_names[:2]) + ",...")
+    columns = table.header[1:]
+    for c in columns:
+        if c not in muscle_names:
+            close = difflib.get_close_matches(c, muscle_names, n=3, cutoff=0.5)
+            hint = f"closest: {', '.join(close)}" if close else \
+                f"the model's muscles are {', '.join(muscle_names[:6])}{', ...' if len(muscle_names) > 6 else ''}"
+            raise FacesimError(f"{table.path}: line {table.header_line}, column {c!r}: unknown muscle; {hint}")
+    values = numbers(table, columns)
+    bad = np.argwhere((values < 0.0) | (values > 1.0))
+    if len(bad):
+        i, j = bad[0]
+        raise FacesimError(f"{table.where(i, columns[j])}: activation {table.rows[i][j + 1]} outside [0, 1]")
+    frames = frame_numbers(table)
+    A = np.zeros((len(frames), len(muscle_names)))
+    A[:, [muscle_names.index(c) for c in columns]] = values
+    return frames, A
+
+
+def read_jaw_csv(path, model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
+    """Read a jaw pose CSV and return ``frames (F,) int64`` and ``T (F, 4, 4)`` mandible transforms.
+
+    Two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about the condyle midpoint
+    ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a rotation (rad,
+    positive opens the mouth) about the intercondylar axis. Both through
+    :meth:`facesim.controls.RigidJaw.from_rotation`.
+    """
+    from facesim.controls import RigidJaw
+
+    table = read_table(path, "jaw file", example="frame,rx,ry,rz,tx,ty,tz' or 'frame,opening")
+    columns = set(table.header[1:])
+    if columns == set(JAW_OPENING):
+        opening = numbers(table, JAW_OPENING)[:, 0]
+        T = np.array([RigidJaw.from_rotation(model, float(v)) for v in opening])
+    elif columns == set(JAW_FULL):
+        q = numbers(table, JAW_FULL)
+        T = np.array([RigidJaw.from_rotation(model, rotvec=r[:3], translation=r[3:]) for r in q])
+    else:
+        unknown = sorted(columns - set(JAW_FULL) - set(JAW_OPENING))
+        what = f"unknown column {unknown[0]!r}" if unknown else f"columns {','.join(table.header[1:])}"
+        raise FacesimError(f"{table.path}: line {table.header_line}: {what}; expected 'frame,rx,ry,rz,tx,ty,tz' "
+                           "(rotation vector in rad about the condyle midpoint, translation in mm) or 'frame,opening' "
+                           "(rad)")
+    return frame_numbers(table), T.reshape(-1, 4, 4)
+
+
+def check_same_frames(path, frames, reference_path, reference_frames) -> None:
+    """One-line error unless ``frames`` (of ``path``) equal ``reference_frames`` (of ``reference_path``)."""
+    frames, ref = np.asarray(frames), np.asarray(reference_frames)
+    if len(frames) != len(ref):
+        raise FacesimError(f"{path}: {len(frames)} frames, but {reference_path} has {len(ref)}; expected the "
+                           "same frame column")
+    diff = np.flatnonzero(frames != ref)
+    if len(diff):
+        i = diff[0]
+        raise FacesimError(f"{path}: data row {i + 1} is frame {frames[i]}, but {reference_path} has frame {ref[i]} "
+                           "there; expected the same frame column")
+
+
+# ------------------------------------------------------------------ options and paths
+@dataclass(frozen=True)
+class SimulateOptions:
+    """newton : solver options (``linear_solver`` "amg" or "direct"); fps : frame rate of the TRC
+    time column and the video (Hz); render : a PNG per frame; video : also a movie of the PNGs
+    (implies render); view, size : camera (see :data:`facesim.viz.render.VIEWS`) and pixels."""
+
+    newton: NewtonOptions = field(default_factory=NewtonOptions)
+    fps: float = 30.0
+    render: bool = False
+    video: bool = False
+    view: str = "front"
+    size: tuple[int, int] = (640, 640)
+
+    def __post_init__(self):
+        if not (math.isfinite(self.fps) and self.fps > 0):
+            raise FacesimError(f"fps: expected a frame rate > 0, got {self.fps}")
+        if self.video:
+            object.__setattr__(self, "render", True)
+
+
+class _Out:
+    """The files of an output folder."""
+
+    def __init__(self, root):
+        self.root = Path(root)
+        self.frames_csv = self.root / "frames.csv"
+        self.markers_csv = self.root / "markers.csv"
+        self.trc = self.root / "markers.trc"
+        self.report = self.root / "report.json"
+
+    def skin(self, k: int) -> Path:
+        return self.root / "skin" / f"frame_{k:05d}.ply"
+
+    def state(self, k: int) -> Path:
+        return self.root / "state" / f"frame_{k:05d}.npz"
+
+    def png(self, k: int) -> Path:
+        return self.root / "png" / f"frame_{k:05d}.png"
+
+    def holds_a_run(self) -> bool:
+        return self.frames_csv.exists() or self.markers_csv.exists() or any((self.root / "state").glob("frame_*.npz"))
+
+    def clear(self) -> None:
+        """Remove what a run writes (and nothing else) from the folder."""
+        for name in _OUTPUT_FILES:
+            (self.root / name).unlink(missing_ok=True)
+        for sub in ("skin", "state", "png"):
+            folder = self.root / sub
+            if folder.is_dir():
+                for p in folder.iterdir():
+                    if _FRAME_FILE.match(p.name):
+                        p.unlink()
+
+
+class _Log:
+    """An append-only text log: each :meth:`add` writes one complete line and flushes it to disk."""
+
+    def __init__(self, path: Path, header: str, lines):
+        text = header + "".join(lines)
+        atomic_write(path, lambda tmp: tmp.write_text(text))
+        self.file = open(path, "a", encoding="utf-8")  # noqa: SIM115  (kept open across frames)
+
+    def add(self, line: str) -> None:
+        self.file.write(line)
+        self.file.flush()
+        os.fsync(self.file.fileno())
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def _csv_line(values) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow(values)
+    return buf.getvalue()
+
+
+def _log_lines(path: Path, header: str, n_fields: int) -> dict[int, str]:
+    """Complete, well-formed lines of an earlier log by frame (a line cut by a crash is dropped)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return {}
+    lines = text.splitlines(keepends=True)
+    if not lines or lines[0] != header:
+        return {}
+    out = {}
+    for line in lines[1:]:
+        if not line.endswith("\n"):
+            break
+        fields = next(csv.reader([line]), [])
+        if len(fields) != n_fields:
+            break
+        try:
+            out[int(fields[0])] = line
+        except ValueError:
+            break
+    return out
+
+
+def _fingerprint(model: FaceModel) -> str:
+    """Short hash of what the results depend on in the model (mesh, muscles, markers)."""
+    h = hashlib.sha1()
+    for arr in (model.X, model.tets, model.muscles.sigma_max, model.cranium_nodes, model.jaw_nodes):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    h.update("\n".join(model.muscles.names + model.markers.names).encode())
+    return h.hexdigest()[:16]
+
+
+def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str) -> None:
+    atomic_write(path, lambda tmp: np.savez(tmp, x=np.asarray(x, dtype=np.float64), a=a, jaw=jaw, frame=k,
+                                            converged=converged, error=error))
+
+
+def _frame_row(k: int, converged: bool, report, seconds: float, error: str = "") -> dict:
+    if report is None:
+        return {"frame": k, "converged": 0, "iterations": 0, "relative_residual": math.nan, "residual_N": math.nan,
+                "seconds": seconds, "linear_iterations": 0, "error": error}
+    residual = float(report.residuals[-1]) if report.residuals else math.nan
+    # SolveReport.relative_residual divides by the cold-start force, which is 0 for a frame at rest
+    relative = residual / report.force_scale if report.force_scale > 0 else math.nan
+    return {"frame": k, "converged": int(converged), "iterations": int(report.iterations),
+            "relative_residual": relative, "residual_N": residual, "seconds": seconds,
+            "linear_iterations": int(sum(report.linear_iterations)), "error": error}
+
+
+def _row_line(row: dict) -> str:
+    fmt = {"relative_residual": "{:.3e}", "residual_N": "{:.3e}", "seconds": "{:.3f}"}
+    return _csv_line([fmt.get(c, "{}").format(row[c]) for c in FRAME_LOG_COLUMNS])
+
+
+def _parse_row(line: str) -> dict:
+    values = next(csv.reader([line]))
+    row = dict(zip(FRAME_LOG_COLUMNS, values))
+    for c in ("frame", "converged", "iterations", "linear_iterations"):
+        row[c] = int(row[c])
+    for c in ("relative_residual", "residual_N", "seconds"):
+        row[c] = float(row[c])
+    return row
+
+
+# ------------------------------------------------------------------ video
+def write_video(pngs, out_dir, fps: float) -> tuple[Path, str]:
+    """Movie of the PNG files ``pngs`` at ``fps``: ``OUT/video.mp4`` if imageio and imageio-ffmpeg
+    are installed, else an animated GIF ``OUT/video.gif`` through PIL. Returns the path and a
+    one-line note ("" for MP4)."""
+    from PIL import Image
+
+    pngs = list(pngs)
+    if not pngs:
+        raise FacesimError(f"{out_dir}: no rendered frames to make a video of")
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg  # noqa: F401  (imageio's MP4 backend)
+    except ImportError:
+        imageio = None
+    out_dir = Path(out_dir)
+    if imageio is not None:
+        def write_mp4(tmp):
+            with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=8) as writer:
+                for p in pngs:
+                    writer.append_data(np.asarray(Image.open(p).convert("RGB")))
+        return atomic_write(out_dir / "video.mp4", write_mp4), ""
+
+    def write_gif(tmp):
+        images = [Image.open(p).convert("RGB") for p in pngs]
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], loop=0,
+                       duration=max(20, round(1000.0 / fps)))
+    path = atomic_write(out_dir / "video.gif", write_gif)
+    return path, (f"imageio-ffmpeg is not installed: wrote an animated GIF {path} instead of MP4 "
+                  "(pip install imageio imageio-ffmpeg for MP4)")
+
+
+# ------------------------------------------------------------------ the run
+def _validate(model: FaceModel, activations, frames, jaw):
+    A = np.asarray(activations, dtype=np.float64)
+    if A.ndim != 2 or A.shape[1] != model.n_muscles or not len(A):
+        raise FacesimError(f"activations: expected shape (frames, {model.n_muscles}), got {A.shape}")
+    if not np.isfinite(A).all() or A.min() < 0.0 or A.max() > 1.0:
+        raise FacesimError("activations: expected finite values in [0, 1]")
+    frames = np.arange(len(A)) if frames is None else np.asarray(frames)
+    if frames.shape != (len(A),) or not np.all(frames == np.round(frames)) or frames.min() < 0 or \
+            np.any(np.diff(frames) <= 0):
+        raise FacesimError(f"frames: expected {len(A)} increasing integer frame numbers >= 0")
+    frames = frames.astype(np.int64)
+    if jaw is None:
+        J = np.broadcast_to(np.eye(4), (len(A), 4, 4))
+    else:
+        J = np.asarray(jaw, dtype=np.float64)
+        if J.shape != (len(A), 4, 4) or not np.isfinite(J).all():
+            raise FacesimError(f"jaw: expected {len(A)} finite 4x4 transforms, got shape {J.shape}")
+    return A, frames, J
+
+
+def _complete_frames(out: _Out, frames, A, J, model: FaceModel, mk_header: str, log_header: str):
+    """Number of leading frames already complete in ``out`` and their log lines."""
+    rows = _log_lines(out.frames_csv, log_header, len(FRAME_LOG_COLUMNS))
+    marks = _log_lines(out.markers_csv, mk_header, 1 + 3 * model.n_markers)
+    n = 0
+    for i, k in enumerate(frames):
+        k = int(k)
+        if k not in rows or k not in marks or not out.state(k).is_file():
+            break
+        try:
+            with np.load(out.state(k)) as z:
+                same = np.array_equal(z["a"], A[i]) and np.array_equal(z["jaw"], J[i])
+        except (OSError, KeyError, ValueError):
+            same = False
+        if not same:
+            break
+        n += 1
+    done = [int(k) for k in frames[:n]]
+    return n, [rows[k] for k in done], [marks[k] for k in done]
+
+
+def _load_x(out: _Out, k: int, model: FaceModel) -> np.ndarray:
+    with np.load(out.state(k)) as z:
+        x = np.array(z["x"], dtype=np.float64)
+    if x.shape != model.X.shape:
+        raise FacesimError(f"{out.state(k)}: positions of shape {x.shape}, the model has {model.X.shape}; "
+                           "the folder holds a run of another model")
+    return x
+
+
+def _prepare_folder(out: _Out, fingerprint: str, resume: bool, overwrite: bool) -> None:
+    """Refuse to mix runs: a folder holding a run needs ``resume`` (of the same model) or ``overwrite``."""
+    if out.root.exists() and not out.root.is_dir():
+        raise FacesimError(f"{out.root}: expected an output folder, found a file")
+    if resume and overwrite:
+        raise FacesimError("simulate: resume and overwrite exclude each other")
+    if out.holds_a_run() and not resume:
+        if not overwrite:
+            raise FacesimError(f"{out.root}: holds the results of an earlier run; use --resume to continue it, "
+                               "--overwrite to replace it, or another folder")
+        out.clear()
+    if resume and out.report.is_file():
+        try:
+            old = json.loads(out.report.read_text())
+        except (OSError, ValueError):
+            old = {}
+        if old.get("model_fingerprint") not in (None, fingerprint):
+            raise FacesimError(f"{out.report}: the run in this folder used another model "
+                               f"({old.get('model')}); resume it with that model or use --overwrite")
+
+
+def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, caption: str = "",
+          skin: bool = True, png: bool = True) -> None:
+    """The skin PLY and, with ``options.render``, the PNG of frame ``k`` at positions ``x``."""
+    from facesim.export import export_skin
+
+    x = np.where(np.isfinite(x), x, model.X)   # a diverged solve must not break the files
+    if skin:
+        export_skin(model, out.skin(k), x)
+    if png and options.render:
+        from facesim.viz.render import render_model
+
+        render_model(model, out.png(k), view=options.view, x=x, size=options.size, title=f"frame {k}{caption}")
+
+
+def _solve(sim, controls, x_warm):
+    """One frame: ``(x (n, 3), converged, SolveReport or None, error message, seconds)``."""
+    t0 = time.perf_counter()
+    try:
+        eq = sim.equilibrium(controls, x0=x_warm)
+    except FacesimError as exc:   # a numerical failure of this frame (e.g. the linear solver)
+        x = sim.attached_positions(controls, x_warm)
+        return x, False, None, " ".join(str(exc).split()), time.perf_counter() - t0
+    finite = bool(np.isfinite(eq.x).all())
+    return (eq.x, eq.converged and finite, eq.report, "" if finite else "non-finite positions",
+            eq.report.seconds.get("total", time.perf_counter() - t0))
+
+
+def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, options: SimulateOptions | None = None,
+             resume: bool = False, overwrite: bool = False, progress: bool = True, info: dict | None = None) -> dict:
+    """Simulate a sequence of frames and write the results into ``out_dir`` (see the module doc).
+
+    Parameters
+    ----------
+    model : FaceModel.
+    activations : (F, n_muscles) float64 in [0, 1], one row per frame.
+    out_dir : output folder (created if needed).
+    frames : (F,) increasing integer frame numbers (default 0..F-1); they name the files.
+    jaw : (F, 4, 4) mandible transforms relative to the skull (mm), or None for the rest pose.
+    options : :class:`SimulateOptions`.
+    resume : continue a run in ``out_dir`` after its last complete frame.
+    overwrite : remove the results of an earlier run in ``out_dir`` first. Without ``resume`` or
+        ``overwrite`` a folder holding a run is an error.
+    progress : tqdm bar over frames on stderr.
+    info : extra entries for ``report.json`` (e.g. the input file names).
+
+    Returns the summary written to ``report.json``: frame counts, converged count, the frames
+    that did not converge, seconds, options and output paths.
+    """
+    from tqdm import tqdm
+
+    from facesim.controls import Controls
+    from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+    from facesim.mocap.io import marker_csv_header, marker_csv_line, read_markers_csv, write_trc
+
+    options = options or SimulateOptions()
+    A, frames, J = _validate(model, activations, frames, jaw)
+    if options.render:
+        from facesim.viz.render import VIEWS
+
+        if options.view not in VIEWS:
+            raise FacesimError(f"view: unknown view {options.view!r}; expected one of {', '.join(VIEWS)}")
+    out = _Out(out_dir)
+    fingerprint = _fingerprint(model)
+    _prepare_folder(out, fingerprint, resume, overwrite)
+    mk_header = marker_csv_header(model.markers.names)
+    log_header = ",".join(FRAME_LOG_COLUMNS) + "\n"
+    n_done, old_rows, old_marks = (_complete_frames(out, frames, A, J, model, mk_header, log_header) if resume
+                                   else (0, [], []))
+
+    wall0 = time.perf_counter()
+    summary = {
+        "facesim_version": facesim.__version__, "status": "running", **(info or {}),
+        "model_fingerprint": fingerprint, "n_nodes": model.n_nodes, "n_muscles": model.n_muscles,
+        "n_markers": model.n_markers,
+        "options": {"solver": options.newton.linear_solver, "rtol": options.newton.rtol,
+                    "max_iterations": options.newton.max_iterations, "fps": options.fps, "render": options.render,
+                    "video": options.video, "view": options.view, "size": list(options.size), "resume": resume},
+        "frames": len(frames), "first_frame": int(frames[0]), "last_frame": int(frames[-1]),
+        "resumed_at_frame": int(frames[n_done]) if resume and n_done < len(frames) else None,
+        "reused_frames": n_done,
+    }
+    atomic_write(out.report, lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
+
+    rows = [_parse_row(line) for line in old_rows]
+    # Warm start: the last converged complete frame (a diverged state is a poor starting guess).
+    converged_before = [r["frame"] for r in rows if r["converged"]]
+    x_warm = _load_x(out, converged_before[-1], model) if converged_before else None
+    for k in map(int, frames[:n_done]):   # files derived from the state of complete frames: redraw missing ones
+        skin, png = not out.skin(k).is_file(), options.render and not out.png(k).is_file()
+        if skin or png:
+            _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png)
+
+    frame_log = _Log(out.frames_csv, log_header, old_rows)
+    marker_log = _Log(out.markers_csv, mk_header, old_marks)
+    status, sim = "running", None
+    try:
+        with tqdm(total=len(frames), initial=n_done, desc="simulate", unit="frame", disable=not progress) as bar:
+            for i in range(n_done, len(frames)):
+                k = int(frames[i])
+                if sim is None:   # built here, so a run with nothing left to do skips the setup
+                    sim = FaceSimulator(model, EquilibriumOptions(newton=options.newton))
+                x, converged, report, error, seconds = _solve(sim, Controls(A[i], jaw=None if jaw is None else J[i]),
+                                                              x_warm)
+                _save_state(out.state(k), k, x, A[i], J[i], converged, error)
+                _draw(out, model, k, x, options, "" if converged else " (not converged)")
+                P = model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan)
+                marker_log.add(marker_csv_line(k, P))
+                row = _frame_row(k, converged, report, seconds, error)
+                frame_log.add(_row_line(row))   # last: the frame is complete once this row is on disk
+                rows.append(row)
+                if converged:
+                    x_warm = x
+                bar.set_postfix(iterations=row["iterations"], converged=converged, refresh=False)
+                bar.update(1)
+        status = "complete"
+    except BaseException as exc:
+        status = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed: {type(exc).__name__}"
+        raise
+    finally:
+        frame_log.close()
+        marker_log.close()
+        if rows:
+            data = read_markers_csv(out.markers_csv)
+            write_trc(out.trc, data.frames, data.names, data.P, options.fps)
+        summary.update(_summarise(rows, status, time.perf_counter() - wall0, out))
+        if options.render:
+            summary["outputs"]["png"] = str(out.root / "png")
+        if status == "complete" and options.video:
+            path, note = write_video([out.png(int(k)) for k in frames], out.root, options.fps)
+            summary["outputs"]["video"] = str(path)
+            summary["video_note"] = note
+        atomic_write(out.report, lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
+    return summary
+
+
+def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
+    failed = [r for r in rows if not r["converged"]]
+    return {
+        "status": status,
+        "finished_frames": len(rows),
+        "converged": len(rows) - len(failed),
+        "unconverged_frames": [r["frame"] for r in failed],
+        "errors": {str(r["frame"]): r["error"] for r in failed if r["error"]},
+        "newton_iterations": int(sum(r["iterations"] for r in rows)),
+        "solve_seconds": round(float(sum(r["seconds"] for r in rows)), 3),
+        "wall_seconds": round(wall, 3),
+        "outputs": {"skin": str(out.root / "skin"), "state": str(out.root / "state"),
+                    "markers_csv": str(out.markers_csv), "markers_trc": str(out.trc),
+                    "frames_csv": str(out.frames_csv)},
+    }
+
+
+__all__ = ["SimulateOptions", "check_same_frames", "read_activations_csv", "read_jaw_csv", "simulate", "write_video"]
