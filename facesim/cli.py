@@ -328,8 +328,23 @@ def cmd_demo(args) -> int:
     written = []
     for name, job in tqdm(jobs, desc="demo pictures", unit="picture", disable=args.quiet):
         written.append(job(out / name))
-    # The solver is not part of facesim yet: the demo shows the model; simulation comes next.
-    print(f"wrote {len(written)} pictures of the rest model to {out}/:")
+    # one expression through the quasistatic solver: a smile (zygomatic muscles, both sides)
+    import numpy as np
+
+    from facesim.controls import Controls
+    from facesim.fem.equilibrium import FaceSimulator
+
+    a = np.zeros(model.n_muscles)
+    for i, name in enumerate(model.muscles.names):
+        if name.rsplit("_", 1)[0] in ("zygomaticus_major", "zygomaticus_minor", "risorius"):
+            a[i] = 1.0
+    eq = FaceSimulator(model).equilibrium(Controls(a))
+    r = eq.report
+    print(f"smile: {'converged' if r.converged else 'NOT converged'} in {r.iterations} Newton iterations, "
+          f"relative residual {r.relative_residual:.1e}, {r.seconds['total']:.1f} s")
+    written.append(render_model(model, out / "smile.png", view="front", size=size, x=eq.x,
+                                show=("skin", "markers"), skin_opacity=1.0, legend=False, title="smile"))
+    print(f"wrote {len(written)} pictures to {out}/:")
     for p in written:
         print(f"  {p}")
     return 0

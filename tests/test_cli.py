@@ -101,10 +101,11 @@ def test_demo_renders_pictures(box_model_path, tmp_path, monkeypatch, capsys):
     assert default_model_path() == box_model_path
     assert main(["demo", "-o", str(tmp_path / "demo"), "--size", "160x160", "-q"]) == 0
     names = sorted(p.name for p in (tmp_path / "demo").iterdir())
-    assert names == ["front.png", "muscles.png", "sheet.png", "side.png", "three_quarter.png"]
+    assert names == ["front.png", "muscles.png", "sheet.png", "side.png", "smile.png", "three_quarter.png"]
     for name in names:
         assert np.asarray(Image.open(tmp_path / "demo" / name)).std() > 5
-    assert str(tmp_path / "demo") in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert str(tmp_path / "demo") in printed and "smile: converged" in printed
 
 
 def test_default_model_is_in_the_repository(monkeypatch):

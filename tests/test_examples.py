@@ -1,0 +1,31 @@
+"""The numbered examples run at small size."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_01_expressions(tmp_path):
+    ex = _load("01_expressions")
+    results = ex.main(["--out", str(tmp_path), "--size", "160", "--only", "rest", "smile", "jaw_open"])
+    assert set(results) == {"rest", "smile", "jaw_open"}
+    assert all(r.converged for r in results.values())
+    from PIL import Image
+
+    sheet = np.asarray(Image.open(tmp_path / "expressions.png"))
+    assert sheet.shape == (320, 320, 3) and sheet.std() > 10
+    assert (tmp_path / "smile.png").is_file()
+    # the smile and the open jaw change the face; rest does not
+    rest = results["rest"].x
+    assert np.abs(results["smile"].x - rest).max() > 2.0
+    assert np.abs(results["jaw_open"].x - rest).max() > 10.0
