@@ -29,3 +29,10 @@ def test_01_expressions(tmp_path):
     rest = results["rest"].x
     assert np.abs(results["smile"].x - rest).max() > 2.0
     assert np.abs(results["jaw_open"].x - rest).max() > 10.0
+
+
+def test_00_uniaxial_block():
+    rows = _load("00_uniaxial_block").main(["--cells", "2"])
+    assert len(rows) == 10
+    for vol, stretch, fe, exact in rows:
+        assert abs(fe - exact) <= 1e-6 * abs(exact), (vol, stretch)

@@ -97,7 +97,7 @@ def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems,
         for i in range(c * n // nc, (c + 1) * n // nc):
             e = elems[i]
             deformation_gradient(x, tets[e], Bm[e], F)
-            acc += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work)
+            acc += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work, False)
             if want_gradient:
                 shape_gradients(Bm[e], b)
                 for a in range(4):

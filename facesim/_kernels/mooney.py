@@ -168,10 +168,10 @@ def _pair_eigenvalues(si, sj, gi, gj, Hii, Hij, Hjj):
 
 
 @njit(**JIT_FLAGS)
-def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work):
-    """Energy density at ``F`` (3, 3); first Piola stress into ``P`` (3, 3); the nine eigenvalues
-    of dP/dF into ``lam`` (9,) and their unit eigenvectors (as 3x3 matrices) into ``Q`` (9, 3, 3).
-    ``work`` (>= MODES_WORK,) scratch."""
+def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work, want_modes=True):
+    """Energy density at ``F`` (3, 3); first Piola stress into ``P`` (3, 3); with ``want_modes`` the
+    nine eigenvalues of dP/dF into ``lam`` (9,) and their unit eigenvectors (as 3x3 matrices) into
+    ``Q`` (9, 3, 3). ``work`` (>= MODES_WORK,) scratch."""
     U = work[0:9].reshape((3, 3))
     V = work[9:18].reshape((3, 3))
     s = work[18:21]
@@ -185,6 +185,8 @@ def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work):
     for k in range(3):
         for l in range(3):
             P[k, l] = U[k, 0] * g[0] * V[l, 0] + U[k, 1] * g[1] * V[l, 1] + U[k, 2] * g[2] * V[l, 2]
+    if not want_modes:
+        return psi
     # diagonal block
     for i in range(3):
         for j in range(3):

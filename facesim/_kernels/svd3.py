@@ -25,7 +25,7 @@ def _sym_eig3(A, V, w):
     for _sweep in range(30):
         off = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
         scale = A[0, 0] * A[0, 0] + A[1, 1] * A[1, 1] + A[2, 2] * A[2, 2]
-        if off <= 1e-34 * scale or off == 0.0:
+        if off <= 1e-32 * scale or off == 0.0:   # off-diagonal below 1e-16 of the diagonal
             break
         for p, q in ((0, 1), (0, 2), (1, 2)):
             apq = A[p, q]
