@@ -378,7 +378,8 @@ def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, capt
     if png and options.render:
         from facesim.viz.render import render_model
 
-        render_model(model, out.png(k), view=options.view, x=x, size=options.size, title=f"frame {k}{caption}")
+        render_model(model, out.png(k), view=options.view, x=x, size=options.size, title=f"frame {k}{caption}",
+                     frame_on=model.X)
 
 
 def _solve(sim, controls, x_warm):

@@ -202,9 +202,22 @@ def _set_camera(plotter, points: np.ndarray, view: str) -> None:
     plotter.camera.zoom(1.35)  # reset_camera fits the bounding sphere, which leaves wide margins
 
 
+def _set_camera_on(plotter, points: np.ndarray, view: str) -> None:
+    """Camera looking along ``view`` at the bounding box of ``points``, fitted to that box only."""
+    direction, up = (np.asarray(v, dtype=np.float64) for v in VIEWS[view])
+    direction /= np.linalg.norm(direction)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    radius = 0.5 * float(np.linalg.norm(hi - lo))
+    angle = np.deg2rad(plotter.camera.view_angle)
+    distance = radius / np.sin(angle / 2) / 1.35
+    plotter.camera_position = [tuple(centre + distance * direction), tuple(centre), tuple(up)]
+    plotter.reset_camera_clipping_range()
+
+
 def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
                  size=(1200, 1200), x=None, legend: bool = True, title: str | None = None,
-                 muscle_threshold: float = 0.3) -> np.ndarray:
+                 muscle_threshold: float = 0.3, frame_on=None) -> np.ndarray:
     """Render the model and return the picture as an ``(h, w, 3)`` uint8 RGB array.
 
     Parameters are those of :func:`render_model` (without the path).
@@ -234,7 +247,10 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
         panel = _legend_layout(entries, (width, height))[2]
         if panel:
             plotter.window_size = (width - panel, height)
-        _set_camera(plotter, points, view)
+        if frame_on is None:
+            _set_camera(plotter, points, view)
+        else:   # a camera that does not move between the frames of a sequence
+            _set_camera_on(plotter, np.asarray(frame_on, dtype=np.float64), view)
         image = plotter.screenshot(None, return_img=True)
     finally:
         plotter.close()
@@ -301,7 +317,7 @@ def _save_png(image: np.ndarray, path) -> Path:
 
 def render_model(model: FaceModel, path, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
                  size=(1200, 1200), x=None, legend: bool = True, title: str | None = None,
-                 muscle_threshold: float = 0.3) -> Path:
+                 muscle_threshold: float = 0.3, frame_on=None) -> Path:
     """Render one view of the model to a PNG and return its path.
 
     Parameters
@@ -319,8 +335,11 @@ def render_model(model: FaceModel, path, view: str = "front", show=DEFAULT_SHOW,
         colliders then follow the affine motion of their attached nodes (:func:`bone_motion`).
     legend : draw a legend of the muscle names shown.
     title : optional caption in the lower left corner.
+    frame_on : optional ``(k, 3)`` points (e.g. ``model.X``) the camera is fitted to instead of
+        what is drawn, so the frames of a sequence share one camera.
     """
-    return _save_png(render_image(model, view, show, skin_opacity, size, x, legend, title, muscle_threshold), path)
+    return _save_png(render_image(model, view, show, skin_opacity, size, x, legend, title, muscle_threshold,
+                                  frame_on), path)
 
 
 def tile_images(images, columns: int | None = None, fill=BACKGROUND[0]) -> np.ndarray:

@@ -140,3 +140,15 @@ def test_png_suffix_required(box_model, tmp_path):
     with pytest.raises(FacesimError, match="x.jpg: expected a picture file name ending in .png"):
         render_model(box_model, tmp_path / "x.jpg", size=SIZE)
     assert set(LAYERS) == {"skin", "bones", "colliders", "muscles", "markers"}
+
+
+def test_fixed_camera_shows_motion_that_a_fitted_camera_hides(box_model):
+    shift = np.array([15.0, 0.0, 0.0])   # to the subject's left: the viewer's right in the front view
+    x = box_model.X + shift
+    kw = dict(show=("muscles",), size=SIZE, legend=False)
+    fitted = centre(blue_mask(render_image(box_model, "front", x=x, **kw)))
+    fitted_rest = centre(blue_mask(render_image(box_model, "front", **kw)))
+    rest = centre(blue_mask(render_image(box_model, "front", frame_on=box_model.X, **kw)))
+    moved = centre(blue_mask(render_image(box_model, "front", x=x, frame_on=box_model.X, **kw)))
+    assert moved[0] > rest[0] + 0.05          # with a fixed camera the face moves across the picture
+    assert abs(fitted[0] - fitted_rest[0]) < 0.02    # a camera fitted to each frame follows it
