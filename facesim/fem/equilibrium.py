@@ -25,11 +25,14 @@ from facesim.model import FaceModel
 @dataclass(frozen=True)
 class EquilibriumOptions:
     """newton : :class:`NewtonOptions`; volumetric : ``"log"`` or ``"quadratic"``; clamp : singular
-    value clamp of the invertible flesh."""
+    value clamp of the invertible flesh; substeps : when a solve fails, it is retried as a
+    sequence of this many equilibria along the way from the start (bones interpolated on SE(3),
+    activations linearly from the start's when starting from rest); 1 disables the retry."""
 
     newton: NewtonOptions = NewtonOptions()
     volumetric: str = "log"
     clamp: float = DEFAULT_CLAMP
+    substeps: int = 4    # on failure, retry moving bones and activations there in this many steps
 
 
 @dataclass
@@ -105,13 +108,13 @@ class FaceSimulator:
             self._laplace = (free, fixed, spla.splu(Lff), L[free][:, fixed].tocsr())
         return self._laplace
 
-    def predict(self, controls: Controls, x=None) -> np.ndarray:
+    def predict(self, controls: Controls, x=None, transforms=None) -> np.ndarray:
         """Starting guess: ``x`` (default: the rest shape moved with the skull) with the bones placed
         and their displacement carried into the free flesh by harmonic interpolation, so a large
         bone motion does not start Newton from crushed elements next to the bone."""
         base = self.attached_positions(Controls(controls.a, None, controls.head), x) if x is None else \
             np.array(x, dtype=np.float64)
-        target = self.attached_positions(controls, base)
+        target = self.attached_positions(controls, base, transforms)
         free, fixed, lu, Lfc = self._harmonic()
         d = target[fixed] - base[fixed]
         if not np.any(d):
@@ -144,11 +147,11 @@ class FaceSimulator:
         H = np.eye(4) if controls.head is None else controls.head
         return H, H @ self.jaw_model.transform(controls.jaw)
 
-    def attached_positions(self, controls: Controls, x=None) -> np.ndarray:
+    def attached_positions(self, controls: Controls, x=None, transforms=None) -> np.ndarray:
         """``(n, 3)``: ``x`` (default: the rest shape moved with the skull) with cranium and jaw
-        nodes placed by their bones."""
+        nodes placed by their bones (``transforms = (Hc, Hj)`` overrides the controls' bones)."""
         m = self.model
-        Hc, Hj = self.bone_transforms(controls)
+        Hc, Hj = transforms if transforms is not None else self.bone_transforms(controls)
         out = (m.X @ Hc[:3, :3].T + Hc[:3, 3]) if x is None else np.array(x, dtype=np.float64)
         out[m.cranium_nodes] = m.X[m.cranium_nodes] @ Hc[:3, :3].T + Hc[:3, 3]
         out[m.jaw_nodes] = m.X[m.jaw_nodes] @ Hj[:3, :3].T + Hj[:3, 3]
@@ -170,11 +173,38 @@ class FaceSimulator:
             x0 = np.asarray(x0, dtype=np.float64)
             if x0.shape != self.model.X.shape:
                 raise FacesimError(f"x0: expected positions of shape {self.model.X.shape}, got {x0.shape}")
+        options = newton_options or self.options.newton
         scale = self.force_scale(controls)
         prob = self.problem(controls, self.predict(controls, x0))
-        x, rep = newton(prob, newton_options or self.options.newton, scale, self.linear)
+        x, rep = newton(prob, options, scale, self.linear)
+        if not rep.converged and self.options.substeps > 1:
+            x, rep = self._substepped(controls, x0, options, scale, rep)
         rep.seconds["total"] = time.perf_counter() - t0
         return Equilibrium(x=x, controls=controls, report=rep)
+
+    def _substepped(self, controls, x0, options, scale, failed):
+        """Retry a failed solve as a path of equilibria from the start state to ``controls``."""
+        m = self.model
+        start = self.attached_positions(Controls(controls.a, None, controls.head)) if x0 is None else x0
+        # the start's bone poses, fitted to its attached nodes (exact for rigid bones)
+        H0 = (rigid_fit(m.X[m.cranium_nodes], start[m.cranium_nodes]), rigid_fit(m.X[m.jaw_nodes], start[m.jaw_nodes]))
+        H1 = self.bone_transforms(controls)
+        a0 = np.zeros_like(controls.a) if x0 is None else controls.a
+        x = start
+        iterations, residuals = failed.iterations, list(failed.residuals)
+        k = self.options.substeps
+        for i in range(1, k + 1):
+            s = i / k
+            Hs = tuple(interpolate_rigid(A, B, s, m.X[nodes].mean(axis=0) if len(nodes) else (0, 0, 0))
+                       for A, B, nodes in zip(H0, H1, (m.cranium_nodes, m.jaw_nodes)))
+            a = (1 - s) * a0 + s * controls.a
+            prob = Problem(self.terms, self.system, self.attached_positions(controls, self.predict(controls, x, Hs), Hs), a)
+            x, rep = newton(prob, options, scale, self.linear)
+            iterations += rep.iterations
+            residuals += rep.residuals
+        rep.iterations, rep.residuals = iterations, residuals
+        rep.seconds["substeps"] = k
+        return x, rep
 
     def internal_force(self, x, a) -> np.ndarray:
         """Total internal force ``-dE/dx (n, 3)`` (N) of flesh and muscles."""
@@ -183,6 +213,35 @@ class FaceSimulator:
     def force_columns(self, x):
         """``(3n, n_muscles)`` per-muscle active force columns at ``x`` (see :meth:`MuscleTerm.force_columns`)."""
         return self.muscle.force_columns(x)
+
+
+def rigid_fit(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """4x4 rigid transform taking points ``P (k, 3)`` closest to ``Q (k, 3)`` (Kabsch); identity if k = 0."""
+    T = np.eye(4)
+    if len(P) == 0:
+        return T
+    cp, cq = P.mean(axis=0), Q.mean(axis=0)
+    U, _, Vt = np.linalg.svd((P - cp).T @ (Q - cq))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    T[:3, :3] = R
+    T[:3, 3] = cq - R @ cp
+    return T
+
+
+def interpolate_rigid(A: np.ndarray, B: np.ndarray, s: float, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Rigid 4x4 a fraction ``s`` of the way from ``A`` to ``B``: the rotation by slerp, the image
+    of ``centre (3,)`` (choose a point of the moving body) along the straight line."""
+    from scipy.spatial.transform import Rotation
+
+    c = np.asarray(centre, dtype=np.float64)
+    r = Rotation.from_matrix(B[:3, :3] @ A[:3, :3].T).as_rotvec()
+    R = Rotation.from_rotvec(s * r).as_matrix() @ A[:3, :3]
+    p = (1 - s) * (A[:3, :3] @ c + A[:3, 3]) + s * (B[:3, :3] @ c + B[:3, 3])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p - R @ c
+    return T
 
 
 def equilibrium(model: FaceModel, controls: Controls, x0=None, options: EquilibriumOptions | None = None,

@@ -106,3 +106,35 @@ def test_bad_controls_are_refused(face):
         Controls(np.zeros(model.n_muscles), head=np.eye(3))
     with pytest.raises(FacesimError, match="x0"):
         sim.equilibrium(Controls(np.zeros(model.n_muscles)), x0=np.zeros((3, 3)))
+
+
+def test_rigid_fit_and_interpolation():
+    from facesim.fem.equilibrium import interpolate_rigid, rigid_fit
+
+    rng = np.random.default_rng(0)
+    T = rotation_about([0.2, -0.4, 0.1], [10.0, 0.0, 5.0])
+    T[:3, 3] += [1.0, 2.0, -3.0]
+    P = rng.normal(size=(30, 3)) * 20
+    np.testing.assert_allclose(rigid_fit(P, P @ T[:3, :3].T + T[:3, 3]), T, atol=1e-12)
+    c = P.mean(axis=0)
+    np.testing.assert_allclose(interpolate_rigid(np.eye(4), T, 0.0, c), np.eye(4), atol=1e-14)
+    np.testing.assert_allclose(interpolate_rigid(np.eye(4), T, 1.0, c), T, atol=1e-12)
+    half = interpolate_rigid(np.eye(4), T, 0.5, c)
+    assert np.allclose(half[:3, :3].T @ half[:3, :3], np.eye(3))
+    np.testing.assert_allclose(half[:3, :3] @ c + half[:3, 3], 0.5 * (c + T[:3, :3] @ c + T[:3, 3]), atol=1e-12)
+
+
+def test_a_failed_solve_is_retried_in_substeps(face):
+    """With too few Newton steps allowed, a large jaw opening fails in one go and succeeds as a
+    path of eight equilibria."""
+    from facesim.fem.equilibrium import EquilibriumOptions
+    from facesim.fem.newton import NewtonOptions
+
+    model, _ = face
+    T = RigidJaw.from_rotation(model, 0.25, translation=6.0 * model.jaw.track_direction)
+    c = Controls(np.zeros(model.n_muscles), jaw=T)
+    short = NewtonOptions(max_iterations=6)
+    once = FaceSimulator(model, EquilibriumOptions(short, substeps=1)).equilibrium(c)
+    stepped = FaceSimulator(model, EquilibriumOptions(short, substeps=8)).equilibrium(c)
+    assert not once.converged
+    assert stepped.converged and stepped.report.seconds["substeps"] == 8
