@@ -70,6 +70,12 @@ def main():
     ap.add_argument("--solver", default="amg", choices=("amg", "direct"))
     args = ap.parse_args()
     rows = [bench(p, args.solver) for p in args.models]
+    print("\ntime split of the cold solves (s): assembly / linear (AMG setup + PCG) / rest (gradients, line search)")
+    for r in rows:
+        for case in ("smile", "all_0.5"):
+            c = r[case]
+            print(f"  {r['model'][-28:]:>28} {case:>8}: {c['assembly_s']:.2f} / {c['linear_s']:.2f} / "
+                  f"{c['total_s'] - c['assembly_s'] - c['linear_s']:.2f}")
     print(f"\nmachine: {platform.machine()}, python {platform.python_version()}, solver {args.solver}")
     print(f"{'model':>28} {'tets':>8} {'sim':>8} {'dofs':>8} {'assem s':>8} {'amg s':>6} | {'case':>8} {'conv':>5} "
           f"{'newton':>6} {'pcg/it':>6} {'s/it':>6} {'total s':>8} {'warm it':>7} {'warm s':>7} {'peak GB':>7}")

@@ -2,8 +2,9 @@
 
 AMG: pyamg smoothed aggregation on the 3x3-block matrix with the six rigid-body modes as
 near-null space (without them CG needs ~10x more iterations, PHYSICS.md section 5). The
-hierarchy is kept and reused while CG converges in few iterations; it is rebuilt when the
-iteration count grows past ``rebuild_factor`` times what it took right after a rebuild.
+hierarchy is kept and reused while CG converges in few iterations; it is rebuilt before the
+next solve once CG needs more than ``rebuild_factor`` times the iterations per digit of residual
+reduction it needed right after a rebuild (at once if CG fails).
 Direct: SuperLU (scipy) on CSC, refactorised every call; fine to ~100K dofs and for many
 right-hand sides.
 """
@@ -42,6 +43,7 @@ class AMGSolver:
         self.smooth = smooth
         self.ml = None
         self.base_iterations = None
+        self.stale = False
         self.stats = LinearStats()
 
     def setup(self, A: sp.bsr_matrix, B: np.ndarray) -> None:
@@ -52,6 +54,7 @@ class AMGSolver:
         self.ml = pyamg.smoothed_aggregation_solver(A, B=B, smooth=self.smooth, max_coarse=300,
                                                     coarse_solver="splu")
         self.base_iterations = None
+        self.stale = False
         self.stats.setups += 1
         self.stats.setup_seconds += time.perf_counter() - t
 
@@ -74,18 +77,21 @@ class AMGSolver:
             self.stats.iterations.append(1)
             self.stats.solve_seconds += time.perf_counter() - t
             return x
-        if self.ml is None or self.ml.levels[0].A.shape != A.shape:
+        if self.ml is None or self.ml.levels[0].A.shape != A.shape or self.stale:
             self.setup(A, B)
         # otherwise the hierarchy of an earlier matrix preconditions this one: still SPD, and
         # close enough while the iteration count stays low
         t = time.perf_counter()
         x, info, it = self._cg(A, b, rtol)
-        stale = self.base_iterations is not None and it > self.rebuild_factor * max(self.base_iterations, 5)
-        if info != 0 or stale:
+        if info != 0 and self.base_iterations is not None:   # too stale to converge: rebuild now
             self.setup(A, B)
             x, info, it = self._cg(A, b, rtol)
+        # slow but converged: rebuild before the next solve rather than solving this one twice.
+        # Cost is compared per digit of residual reduction (Newton tightens rtol as it converges).
+        per_digit = it / max(1.0, -np.log10(max(rtol, 1e-16)))
+        self.stale = self.base_iterations is not None and per_digit > self.rebuild_factor * max(self.base_iterations, 2.0)
         if self.base_iterations is None:
-            self.base_iterations = it
+            self.base_iterations = per_digit
         self.stats.solves += 1
         self.stats.iterations.append(it)
         self.stats.solve_seconds += time.perf_counter() - t
