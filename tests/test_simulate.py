@@ -268,7 +268,7 @@ def test_unconverged_frame_is_flagged_and_its_markers_missing(box_model, tmp_pat
     summary = simulate(box_model, A, tmp_path / "out", options=options, progress=False)
     assert summary["unconverged_frames"] == [1] and summary["converged"] == 2
     log = frame_log(tmp_path / "out")
-    assert [r["converged"] for r in log] == ["1", "0", "1"] and log[1]["iterations"] == "1"
+    assert [r["converged"] for r in log] == ["1", "0", "1"] and int(log[1]["iterations"]) >= 1   # + substep retries
     P = read_markers_csv(tmp_path / "out" / "markers.csv").P
     assert np.isnan(P[1]).all() and np.isfinite(P[[0, 2]]).all()
     with np.load(tmp_path / "out" / "state" / "frame_00001.npz") as z:
