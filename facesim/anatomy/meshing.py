@@ -64,8 +64,18 @@ def tetrahedralise(vertices, faces, edge_face: float, edge_back: float, simulate
     """
     lo, hi = vertices.min(0), vertices.max(0)
     bgP, bgT, bgV = _sizing_mesh(lo, hi, 6.0, lambda p: np.where(simulated_fn(p), edge_face, edge_back))
-    X, T = pytetwild.tetrahedralize(vertices, faces, edge_length_abs=edge_face, epsilon=epsilon,
-                                    num_threads=threads, bg_vertices=bgP, bg_tets=bgT, bg_values=bgV)
+    # fTetWild writes a scratch file (__tracked_surface.stl) into the working directory
+    import os
+    import tempfile
+
+    cwd = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="facesim_tetwild_") as tmp:
+        os.chdir(tmp)
+        try:
+            X, T = pytetwild.tetrahedralize(vertices, faces, edge_length_abs=edge_face, epsilon=epsilon,
+                                            num_threads=threads, bg_vertices=bgP, bg_tets=bgT, bg_values=bgV)
+        finally:
+            os.chdir(cwd)
     X = np.asarray(X, np.float64)
     T = np.asarray(T, np.int32)
     used, inv = np.unique(T, return_inverse=True)
