@@ -115,10 +115,11 @@ class FaceSimulator:
         base = self.attached_positions(Controls(controls.a, None, controls.head), x) if x is None else \
             np.array(x, dtype=np.float64)
         target = self.attached_positions(controls, base, transforms)
-        free, fixed, lu, Lfc = self._harmonic()
+        fixed = np.flatnonzero(self.fixed.all(axis=1))
         d = target[fixed] - base[fixed]
-        if not np.any(d):
+        if not np.any(d):   # no bone moved: nothing to carry (and no Laplacian to factorise)
             return target
+        free, fixed, lu, Lfc = self._harmonic()
         out = target.copy()
         out[free] = base[free] + lu.solve(-(Lfc @ d))
         return out
