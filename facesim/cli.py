@@ -279,7 +279,7 @@ def cmd_simulate(args) -> int:
     frames, A = read_activations_csv(args.activations, model.muscles.names)
     T = None
     if args.jaw:
-        jaw_frames, T = read_jaw_csv(args.jaw, model)
+        jaw_frames, T = read_jaw_csv(args.jaw, model, args.jaw_model)
         check_same_frames(args.jaw, jaw_frames, args.activations, frames)
     options = SimulateOptions(newton=NewtonOptions(linear_solver=args.solver), fps=args.fps,
                               render=args.render or args.video, video=args.video, view=args.view, size=args.size)
@@ -454,6 +454,10 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--model", required=True, metavar="M.npz", help="model file")
     simulate.add_argument("--activations", required=True, metavar="A.csv", help="muscle activations per frame")
     simulate.add_argument("--jaw", metavar="J.csv", help="jaw pose per frame (default: jaw at rest)")
+    simulate.add_argument("--jaw-model", choices=("rigid", "sliding-condyle"), default="rigid",
+                          help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening) or "
+                               "sliding-condyle (frame,opening,left_slide,right_slide in rad, mm, mm; Sifakis 2005) "
+                               "(default: %(default)s)")
     simulate.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
     simulate.add_argument("--render", action="store_true",
                           help="also render every frame to OUT/png/frame_KKKKK.png (off screen)")

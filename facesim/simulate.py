@@ -47,6 +47,8 @@ FRAME_LOG_COLUMNS = ("frame", "converged", "iterations", "relative_residual", "r
                      "linear_iterations", "error")
 JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
 JAW_OPENING = ("opening",)
+JAW_CONDYLE = ("opening", "left_slide", "right_slide")
+JAW_MODELS = ("rigid", "sliding-condyle")
 _OUTPUT_FILES = ("markers.csv", "markers.trc", "frames.csv", "report.json", "video.mp4", "video.gif")
 _FRAME_FILE = re.compile(r"frame_\d+\.(ply|npz|png)$")
 
@@ -81,16 +83,23 @@ def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
     return frames, A
 
 
-def read_jaw_csv(path, model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
+def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.ndarray, np.ndarray]:
     """Read a jaw pose CSV and return ``frames (F,) int64`` and ``T (F, 4, 4)`` mandible transforms.
 
-    Two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about the condyle midpoint
-    ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a rotation (rad,
-    positive opens the mouth) about the intercondylar axis. Both through
+    ``jaw_model="rigid"``, two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about
+    the condyle midpoint ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a
+    rotation (rad, positive opens the mouth) about the intercondylar axis. Both through
     :meth:`facesim.controls.RigidJaw.from_rotation`.
+    ``jaw_model="sliding-condyle"``: ``frame,opening,left_slide,right_slide`` (rad, mm, mm) through
+    :class:`facesim.kinematics.condyle.SlidingCondyleJaw` (Sifakis 2005 section 8), each value
+    within the model's range (opening in [0, max_opening], slides in [0, track_length]).
     """
     from facesim.controls import RigidJaw
 
+    if jaw_model not in JAW_MODELS:
+        raise FacesimError(f"jaw model: expected one of {', '.join(JAW_MODELS)}, got {jaw_model!r}")
+    if jaw_model == "sliding-condyle":
+        return _read_condyle_csv(path, model)
     table = read_table(path, "jaw file", example="frame,rx,ry,rz,tx,ty,tz' or 'frame,opening")
     columns = set(table.header[1:])
     if columns == set(JAW_OPENING):
@@ -106,6 +115,27 @@ def read_jaw_csv(path, model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
                            "(rotation vector in rad about the condyle midpoint, translation in mm) or 'frame,opening' "
                            "(rad)")
     return frame_numbers(table), T.reshape(-1, 4, 4)
+
+
+def _read_condyle_csv(path, model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
+    from facesim.kinematics.condyle import SlidingCondyleJaw
+
+    table = read_table(path, "jaw file", example="frame,opening,left_slide,right_slide")
+    columns = tuple(table.header[1:])
+    if set(columns) != set(JAW_CONDYLE):
+        raise FacesimError(f"{table.path}: line {table.header_line}: columns {','.join(columns)}; expected "
+                           "'frame,opening,left_slide,right_slide' (rad, mm, mm) for the sliding-condyle jaw")
+    q = numbers(table, JAW_CONDYLE)
+    jaw = SlidingCondyleJaw(model.jaw)
+    lo, hi = jaw.bounds[:, 0], jaw.bounds[:, 1]   # (opening, right slide, left slide)
+    p = q[:, [0, 2, 1]]
+    bad = np.argwhere((p < lo - 1e-9) | (p > hi + 1e-9))
+    if len(bad):
+        r, c = bad[0]
+        name = ("opening", "right_slide", "left_slide")[c]
+        raise FacesimError(f"{table.path}: data row {r + 1}, column {name!r}: {p[r, c]:g} outside "
+                           f"[{lo[c]:g}, {hi[c]:g}] ({'rad' if c == 0 else 'mm'})")
+    return frame_numbers(table), np.array([jaw.transform(row) for row in p]).reshape(-1, 4, 4)
 
 
 def check_same_frames(path, frames, reference_path, reference_frames) -> None:

@@ -292,3 +292,25 @@ def test_help(capsys):
     out = capsys.readouterr().out
     for words in ("--activations", "--resume", "--render", "--video", "--fps", "mm", "rad", "frames.csv"):
         assert words in out
+
+
+def test_sliding_condyle_jaw_csv(tmp_path):
+    from pathlib import Path
+
+    from facesim.kinematics.condyle import SlidingCondyleJaw
+    from facesim.model import load_model
+    from facesim.simulate import read_jaw_csv
+
+    model = load_model(Path(__file__).resolve().parents[1] / "meshes" / "face_coarse.npz")
+    f = tmp_path / "j.csv"
+    f.write_text("frame,opening,left_slide,right_slide\n0,0,0,0\n1,0.3,8,5\n")
+    frames, T = read_jaw_csv(f, model, "sliding-condyle")
+    assert list(frames) == [0, 1]
+    np.testing.assert_allclose(T[0], np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(T[1], SlidingCondyleJaw(model.jaw).transform([0.3, 5.0, 8.0]), atol=1e-12)
+    f.write_text("frame,opening,left_slide,right_slide\n0,0.3,40,0\n")
+    with pytest.raises(FacesimError, match=r"j.csv: data row 1, column 'left_slide': 40 outside"):
+        read_jaw_csv(f, model, "sliding-condyle")
+    f.write_text("frame,opening\n0,0.3\n")
+    with pytest.raises(FacesimError, match="left_slide"):
+        read_jaw_csv(f, model, "sliding-condyle")

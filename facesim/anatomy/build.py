@@ -22,7 +22,7 @@ from facesim.model import FaceModel, JawGeometry, RigidSurface, Tissue
 RESOLUTIONS = {
     "test": (1.0, 14.0, 20.0, 4.0e-3),
     "coarse": (1.0, 9.0, 14.0, 3.0e-3),
-    "medium": (1.0, 3.9, 9.0, 2.0e-3),
+    "medium": (1.0, 5.5, 10.0, 2.5e-3),
     "paper": (0.8, 2.5, 7.0, 1.5e-3),
 }
 
