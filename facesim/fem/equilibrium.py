@@ -158,16 +158,21 @@ class FaceSimulator:
         out[m.jaw_nodes] = m.X[m.jaw_nodes] @ Hj[:3, :3].T + Hj[:3, 3]
         return out
 
-    def problem(self, controls: Controls, x=None) -> Problem:
+    def problem(self, controls: Controls, x=None, extra_terms=()) -> Problem:
         controls = self._check(controls)
-        return Problem(self.terms, self.system, self.attached_positions(controls, x), controls.a)
+        return Problem(self.terms + tuple(extra_terms), self.system, self.attached_positions(controls, x), controls.a)
 
-    def force_scale(self, controls: Controls) -> float:
+    def force_scale(self, controls: Controls, extra_terms=()) -> float:
         """Residual force of the cold start (rest shape, bones placed): the reference "relative" refers to."""
-        return float(np.linalg.norm(self.problem(controls).energy_and_gradient(self.attached_positions(controls))[1]))
+        prob = self.problem(controls, None, extra_terms)
+        return float(np.linalg.norm(prob.energy_and_gradient(self.attached_positions(controls))[1]))
 
-    def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None) -> Equilibrium:
-        """Equilibrium positions for ``controls``, warm-started from ``x0 (n, 3)`` if given."""
+    def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None,
+                    extra_terms=()) -> Equilibrium:
+        """Equilibrium positions for ``controls``, warm-started from ``x0 (n, 3)`` if given.
+
+        ``extra_terms``: more energy terms for this solve (e.g. a
+        :class:`~facesim.contact.ContactTerm` against colliders posed for this frame)."""
         controls = self._check(controls)
         t0 = time.perf_counter()
         if x0 is not None:
@@ -175,15 +180,15 @@ class FaceSimulator:
             if x0.shape != self.model.X.shape:
                 raise FacesimError(f"x0: expected positions of shape {self.model.X.shape}, got {x0.shape}")
         options = newton_options or self.options.newton
-        scale = self.force_scale(controls)
-        prob = self.problem(controls, self.predict(controls, x0))
+        scale = self.force_scale(controls, extra_terms)
+        prob = self.problem(controls, self.predict(controls, x0), extra_terms)
         x, rep = newton(prob, options, scale, self.linear)
         if not rep.converged and self.options.substeps > 1:
-            x, rep = self._substepped(controls, x0, options, scale, rep)
+            x, rep = self._substepped(controls, x0, options, scale, rep, extra_terms)
         rep.seconds["total"] = time.perf_counter() - t0
         return Equilibrium(x=x, controls=controls, report=rep)
 
-    def _substepped(self, controls, x0, options, scale, failed):
+    def _substepped(self, controls, x0, options, scale, failed, extra_terms=()):
         """Retry a failed solve as a path of equilibria from the start state to ``controls``."""
         m = self.model
         start = self.attached_positions(Controls(controls.a, None, controls.head)) if x0 is None else x0
@@ -199,7 +204,8 @@ class FaceSimulator:
             Hs = tuple(interpolate_rigid(A, B, s, m.X[nodes].mean(axis=0) if len(nodes) else (0, 0, 0))
                        for A, B, nodes in zip(H0, H1, (m.cranium_nodes, m.jaw_nodes)))
             a = (1 - s) * a0 + s * controls.a
-            prob = Problem(self.terms, self.system, self.attached_positions(controls, self.predict(controls, x, Hs), Hs), a)
+            prob = Problem(self.terms + tuple(extra_terms), self.system,
+                           self.attached_positions(controls, self.predict(controls, x, Hs), Hs), a)
             x, rep = newton(prob, options, scale, self.linear)
             iterations += rep.iterations
             residuals += rep.residuals

@@ -138,3 +138,33 @@ def test_a_failed_solve_is_retried_in_substeps(face):
     stepped = FaceSimulator(model, EquilibriumOptions(short, substeps=8)).equilibrium(c)
     assert not once.converged
     assert stepped.converged and stepped.report.seconds["substeps"] == 8
+
+
+def test_sphere_pressed_into_the_cheek_and_released(face):
+    """Issue 4 scenario: a rigid sphere pushed 10 mm into the cheek through a ContactTerm passed
+    as an extra term; no skin node deeper than 0.5 mm inside, no inverted tet, and the face
+    returns to rest when the sphere leaves."""
+    from facesim.contact import Collider, ContactTerm, Sphere, node_areas
+
+    model, sim = face
+    skin = np.unique(model.skin)
+    weights = node_areas(model.X, model.skin)[skin]
+    cheek = model.marker_positions()[list(model.markers.names).index("cheek_mid_L")]
+    n = np.array([0.6, 0.0, 0.8])
+    radius = 12.0
+    rest = Controls(np.zeros(model.n_muscles))
+    x = None
+    for depth in (5.0, 10.0):
+        term = ContactTerm(skin, [Collider(Sphere(cheek + (radius - depth) * n, radius))], stiffness=1.0,
+                           weights=weights)
+        eq = sim.equilibrium(rest, x0=x, extra_terms=[term])
+        x = eq.x
+        assert eq.converged
+        assert term.signed_distances(x).min() > -0.5
+        assert (model.tet_volumes(x)[sim.elems] > 0).all()
+    pushed = np.linalg.norm(x - model.X, axis=1).max()
+    assert pushed > 7.0   # the cheek gave way
+    gone = ContactTerm(skin, [Collider(Sphere(cheek + 100.0 * n, radius))], stiffness=1.0, weights=weights)
+    back = sim.equilibrium(rest, x0=x, extra_terms=[gone])
+    assert back.converged
+    assert np.linalg.norm(back.x - model.X, axis=1).max() < 1e-3 * pushed
