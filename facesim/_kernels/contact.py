@@ -201,6 +201,17 @@ def grid_sdf(P, R, t, origin, h, values, d, G, H, want_h):
 
 
 @njit(**JIT_FLAGS)
+def _segment_dist2(x, y, z, V, a, b):
+    """Squared distance from ``(x, y, z)`` to the segment between vertices ``a`` and ``b``."""
+    e0, e1, e2 = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+    p0, p1, p2 = x - V[a, 0], y - V[a, 1], z - V[a, 2]
+    L2 = e0 * e0 + e1 * e1 + e2 * e2
+    t = 0.0 if L2 == 0.0 else min(1.0, max(0.0, (p0 * e0 + p1 * e1 + p2 * e2) / L2))
+    q0, q1, q2 = p0 - t * e0, p1 - t * e1, p2 - t * e2
+    return q0 * q0 + q1 * q1 + q2 * q2
+
+
+@njit(**JIT_FLAGS)
 def triangle_distance2(V, F, f, x, y, z):
     """Squared distance from point ``(x, y, z)`` to triangle ``f`` of ``V (nv, 3)``, ``F (nf, 3)``
     (Ericson, Real-Time Collision Detection, section 5.1.5)."""
@@ -210,6 +221,11 @@ def triangle_distance2(V, F, f, x, y, z):
     ab0, ab1, ab2 = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
     ac0, ac1, ac2 = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
     ap0, ap1, ap2 = x - V[a, 0], y - V[a, 1], z - V[a, 2]
+    # degenerate (zero-area) triangles, e.g. from marching cubes: nearest of the three edges
+    n0, n1, n2 = ab1 * ac2 - ab2 * ac1, ab2 * ac0 - ab0 * ac2, ab0 * ac1 - ab1 * ac0
+    if n0 * n0 + n1 * n1 + n2 * n2 <= 1e-24 * ((ab0 * ab0 + ab1 * ab1 + ab2 * ab2) * (ac0 * ac0 + ac1 * ac1 + ac2 * ac2)
+                                                + 1e-300):
+        return min(_segment_dist2(x, y, z, V, a, b), _segment_dist2(x, y, z, V, a, c), _segment_dist2(x, y, z, V, b, c))
     d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
     d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
     if d1 <= 0.0 and d2 <= 0.0:

@@ -247,3 +247,20 @@ def test_inputs_are_copied_and_checked():
         s.distance([[np.nan, 0.0, 0.0]])
     with pytest.raises(FacesimError, match=r"\(k, 3\)"):
         s.distance(np.zeros((4, 2)))
+
+
+def test_mesh_sdf_of_the_shipped_teeth_with_degenerate_triangles():
+    """Marching-cubes surfaces carry zero-area triangles; the grid build must not divide by zero."""
+    from pathlib import Path
+
+    from facesim.model import load_model
+
+    model = load_model(Path(__file__).resolve().parents[2] / "meshes" / "face_coarse.npz")
+    teeth = model.surface("upper_teeth")
+    v = teeth.vertices[teeth.faces]
+    assert (np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) < 1e-12).any()
+    sdf = MeshSDF.from_mesh(teeth.vertices, teeth.faces, spacing=1.0)
+    d = sdf.distance(teeth.vertices)
+    assert np.isfinite(d).all() and np.abs(d).max() < 0.6   # vertices lie on the surface (grid error)
+    centre = teeth.vertices.mean(axis=0) + np.array([0.0, 0.0, 40.0])   # well in front of the teeth
+    assert sdf.distance(centre[None])[0] > 10.0
