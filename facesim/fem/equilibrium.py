@@ -27,12 +27,18 @@ class EquilibriumOptions:
     """newton : :class:`NewtonOptions`; volumetric : ``"log"`` or ``"quadratic"``; clamp : singular
     value clamp of the invertible flesh; substeps : when a solve fails, it is retried as a
     sequence of this many equilibria along the way from the start (bones interpolated on SE(3),
-    activations linearly from the start's when starting from rest); 1 disables the retry."""
+    activations linearly from the start's when starting from rest); 1 disables the retry.
+    teeth_contact : the lip surfaces (``model.lip_upper``, ``lip_lower``) are kept out of the teeth
+    colliders, which move with their bones (penalty ``contact_stiffness``, area-weighted; the
+    rest shape's own clearance, which the mesh envelope can make slightly negative, is the
+    zero of the penalty so the rest shape stays an equilibrium)."""
 
     newton: NewtonOptions = NewtonOptions()
     volumetric: str = "log"
     clamp: float = DEFAULT_CLAMP
     substeps: int = 4    # on failure, retry moving bones and activations there in this many steps
+    teeth_contact: bool = False
+    contact_stiffness: float = 1.0   # N/mm^3 (penalty per mm of penetration per mm^2 of lip surface)
 
 
 @dataclass
@@ -87,6 +93,7 @@ class FaceSimulator:
                                  elems=self.elems)
         self.linear = make_linear_solver(self.options.newton.linear_solver)
         self._laplace = None
+        self._teeth = None
 
     def _harmonic(self):
         """Factorised graph Laplacian of the simulated mesh (edge weights 1/length), free x fixed split."""
@@ -127,6 +134,29 @@ class FaceSimulator:
     @property
     def terms(self):
         return (self.elastic, self.muscle)
+
+    def teeth_term(self, controls: Controls):
+        """The lips-against-teeth :class:`~facesim.contact.ContactTerm` posed for ``controls`` (or None)."""
+        if not self.options.teeth_contact:
+            return None
+        from facesim.contact import Collider, ContactTerm, MeshSDF, node_areas
+
+        m = self.model
+        if self._teeth is None:
+            tris = np.concatenate([m.lip_upper, m.lip_lower])
+            nodes = np.unique(tris)
+            teeth = [(MeshSDF.from_mesh(s.vertices, s.faces, spacing=1.0, name=s.name), s.bone)
+                     for s in m.colliders if "teeth" in s.name]
+            if not teeth or not len(nodes):
+                raise FacesimError("teeth_contact: the model has no teeth colliders or no lip surfaces")
+            rest = min(float(sdf.distance(m.X[nodes]).min()) for sdf, _ in teeth)
+            self._teeth = (nodes, teeth, node_areas(m.X, tris)[nodes], min(0.0, rest) - 0.05)
+        nodes, teeth, weights, margin = self._teeth
+        Hc, Hj = self.bone_transforms(controls)
+        colliders = [Collider(sdf, Hc if bone == "cranium" else Hj) for sdf, bone in teeth]
+        # margin < 0: the penalty starts below the rest clearance
+        return ContactTerm(nodes, colliders, stiffness=self.options.contact_stiffness, margin=margin,
+                           weights=weights)
 
     def with_gain(self, gain) -> "FaceSimulator":
         """A simulator sharing this one's precomputation, with another exaggeration gain."""
@@ -180,6 +210,9 @@ class FaceSimulator:
             if x0.shape != self.model.X.shape:
                 raise FacesimError(f"x0: expected positions of shape {self.model.X.shape}, got {x0.shape}")
         options = newton_options or self.options.newton
+        teeth = self.teeth_term(controls)
+        if teeth is not None:
+            extra_terms = tuple(extra_terms) + (teeth,)
         scale = self.force_scale(controls, extra_terms)
         prob = self.problem(controls, self.predict(controls, x0), extra_terms)
         x, rep = newton(prob, options, scale, self.linear)

@@ -168,3 +168,19 @@ def test_sphere_pressed_into_the_cheek_and_released(face):
     back = sim.equilibrium(rest, x0=x, extra_terms=[gone])
     assert back.converged
     assert np.linalg.norm(back.x - model.X, axis=1).max() < 1e-3 * pushed
+
+
+def test_teeth_contact_keeps_the_puckered_lips_out_of_the_teeth(face):
+    from facesim.fem.equilibrium import EquilibriumOptions
+
+    model, plain = face
+    a = np.array([1.0 if n.startswith("orbicularis_oris") else 0.0 for n in model.muscles.names])
+    sim = FaceSimulator(model, EquilibriumOptions(teeth_contact=True))
+    rest = sim.equilibrium(Controls(np.zeros(model.n_muscles)))
+    assert rest.converged and np.abs(rest.x - model.X).max() < 1e-9   # the rest shape stays an equilibrium
+    term = sim.teeth_term(Controls(a))
+    with_contact = sim.equilibrium(Controls(a))
+    without = plain.equilibrium(Controls(a))
+    assert with_contact.converged and without.converged
+    assert term.signed_distances(without.x).min() < term.margin - 1.0     # the sphincter pushes lips into the teeth
+    assert term.signed_distances(with_contact.x).min() > term.margin - 0.1   # ... unless they are kept out
