@@ -49,6 +49,21 @@ def _as(a, dtype, shape_tail: tuple[int, ...], name: str) -> np.ndarray:
     return arr
 
 
+def signed_volumes(X: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """(m,) float64 signed volumes of ``tets (m, 4)`` at node positions ``X (n, 3)``: positive when
+    ``(x1 - x0) . ((x2 - x0) x (x3 - x0)) > 0``."""
+    e = X[tets[:, 1:]] - X[tets[:, :1]]
+    return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
+
+
+def positively_oriented(X: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """``tets`` with every negatively oriented tet's second and third node swapped (a copy)."""
+    T = np.array(tets, copy=True)
+    flip = signed_volumes(X, T) < 0
+    T[flip] = T[flip][:, [0, 2, 1, 3]]
+    return T
+
+
 def _check_index(arr: np.ndarray, upper: int, name: str) -> None:
     if arr.size and (arr.min() < 0 or arr.max() >= upper):
         raise FacesimError(f"{name}: indices must lie in [0, {upper}), got [{arr.min()}, {arr.max()}]")
@@ -384,10 +399,7 @@ class FaceModel:
     # ------------------------------------------------------------ geometry
     def tet_volumes(self, x: np.ndarray | None = None) -> np.ndarray:
         """(m,) float64 signed tet volumes, mm^3, at positions ``x (n, 3)`` (rest if None)."""
-        x = self.X if x is None else np.asarray(x, dtype=np.float64)
-        p = x[self.tets]
-        e = p[:, 1:] - p[:, :1]
-        return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
+        return signed_volumes(self.X if x is None else np.asarray(x, dtype=np.float64), self.tets)
 
     def marker_positions(self, x: np.ndarray | None = None) -> np.ndarray:
         """(r, 3) float64 marker positions, mm, for node positions ``x (n, 3)`` (rest if None).

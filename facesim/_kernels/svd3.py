@@ -9,7 +9,6 @@ signed singular values. No LAPACK call, no allocation: a few hundred flops per e
 
 import math
 
-import numpy as np
 from numba import njit
 
 from facesim._kernels import JIT_FLAGS

@@ -18,6 +18,7 @@ from skimage import measure
 from facesim.anatomy import sdf
 from facesim.anatomy.phantom import HeadFields
 from facesim.errors import FacesimError
+from facesim.model import positively_oriented, signed_volumes
 
 #: Boundary-face labels.
 SKIN, MOUTH, CRANIUM, JAW, EYE, JOINT, CUT = range(7)
@@ -80,10 +81,7 @@ def tetrahedralise(vertices, faces, edge_face: float, edge_back: float, simulate
     T = np.asarray(T, np.int32)
     used, inv = np.unique(T, return_inverse=True)
     X, T = X[used], inv.reshape(T.shape).astype(np.int32)
-    vol = signed_volumes(X, T)
-    flip = vol < 0
-    T[flip] = T[flip][:, [0, 2, 1, 3]]
-    return split_pinched_nodes(X, T)
+    return split_pinched_nodes(X, positively_oriented(X, T))
 
 
 def check_tet_mesh(X, T) -> tuple[np.ndarray, np.ndarray]:
@@ -142,11 +140,6 @@ def split_pinched_nodes(X: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.nd
     new_id = np.empty(n_comp, np.int64)
     new_id[order] = np.arange(n_comp)
     return X[first[order]].copy(), new_id[comp].reshape(T.shape).astype(np.int32)
-
-
-def signed_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
-    e = X[T[:, 1:]] - X[T[:, :1]]
-    return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
 
 
 def boundary_faces(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from facesim.errors import FacesimError
+from facesim.model import positively_oriented
 
 
 def box_mesh(size=(1.0, 1.0, 1.0), cells=(4, 4, 4), origin=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -25,9 +26,4 @@ def box_mesh(size=(1.0, 1.0, 1.0), cells=(4, 4, 4), origin=(0.0, 0.0, 0.0)) -> t
     for a, b in (((1, 0, 0), (1, 1, 0)), ((1, 0, 0), (1, 0, 1)), ((0, 1, 0), (1, 1, 0)),
                  ((0, 1, 0), (0, 1, 1)), ((0, 0, 1), (1, 0, 1)), ((0, 0, 1), (0, 1, 1))):
         paths.append(np.stack([o, c[a], c[b], d], 1))
-    T = np.concatenate(paths).astype(np.int32)
-    e = X[T[:, 1:]] - X[T[:, :1]]
-    vol = np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2]))
-    flip = vol < 0
-    T[flip] = T[flip][:, [0, 2, 1, 3]]
-    return X, T
+    return X, positively_oriented(X, np.concatenate(paths).astype(np.int32))
