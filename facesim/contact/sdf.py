@@ -18,11 +18,11 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from facesim._csv import frame_numbers, numbers, read_table
 from facesim._kernels import contact as K
 from facesim.errors import FacesimError
+from facesim.kinematics.frames import interpolate_rigid
 
 _RIGID_TOL = 1e-6
 
@@ -349,11 +349,7 @@ class KinematicPath:
         if i >= len(self.frames) - 1 or f == self.frames[i]:
             return self.transforms[i].copy()
         s = (f - self.frames[i]) / (self.frames[i + 1] - self.frames[i])
-        A, B = self.transforms[i], self.transforms[i + 1]
-        T = np.eye(4)
-        T[:3, 3] = (1 - s) * A[:3, 3] + s * B[:3, 3]
-        T[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([A[:3, :3], B[:3, :3]])))(s).as_matrix()
-        return T
+        return interpolate_rigid(self.transforms[i], self.transforms[i + 1], s)
 
     def at_frame(self, frame: float) -> Collider:
         """The collider posed at ``frame``."""

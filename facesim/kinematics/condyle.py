@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from facesim.errors import FacesimError
-from facesim.kinematics.frames import N_FRAME, matrix_to_frame, rigidity_penalty
+from facesim.kinematics.frames import N_FRAME, matrix_to_frame, rigid_fit, rigidity_penalty
 from facesim.model import JawGeometry
 
 
@@ -210,7 +210,6 @@ class SlidingCondyleJaw:
         (``points``, mm). Rigid, satisfies psi1..psi3 = 0 and the ranges, and is idempotent."""
         from scipy.optimize import least_squares
 
-        from facesim.fem.equilibrium import rigid_fit
 
         T = np.asarray(T, dtype=np.float64)
         if T.shape not in ((4, 4), (3, 4)) or not np.isfinite(T).all():
