@@ -45,6 +45,7 @@ class AMGSolver:
         self.base_iterations = None
         self.stale = False
         self.stats = LinearStats()
+        self._direct = DirectSolver(self.stats)
 
     def setup(self, A: sp.bsr_matrix, B: np.ndarray) -> None:
         import pyamg
@@ -71,12 +72,7 @@ class AMGSolver:
     def solve(self, A, b: np.ndarray, B: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
         """Solve ``A x = b`` to relative residual ``rtol``; reuse or rebuild the hierarchy."""
         if A.shape[0] < self.direct_below:
-            t = time.perf_counter()
-            x = spla.splu(sp.csc_matrix(A)).solve(b)
-            self.stats.solves += 1
-            self.stats.iterations.append(1)
-            self.stats.solve_seconds += time.perf_counter() - t
-            return x
+            return self._direct.solve(A, b)
         if self.ml is None or self.ml.levels[0].A.shape != A.shape or self.stale:
             self.setup(A, B)
         # otherwise the hierarchy of an earlier matrix preconditions this one: still SPD, and
@@ -101,10 +97,10 @@ class AMGSolver:
 
 
 class DirectSolver:
-    """Sparse LU (SuperLU) of every matrix it is given."""
+    """Sparse LU (SuperLU) of every matrix it is given; ``stats`` may be shared with another solver."""
 
-    def __init__(self):
-        self.stats = LinearStats()
+    def __init__(self, stats: LinearStats | None = None):
+        self.stats = stats if stats is not None else LinearStats()
         self.lu = None
 
     def factorize(self, A):

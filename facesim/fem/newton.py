@@ -132,7 +132,7 @@ class Problem:
     def max_step(self, x, du: np.ndarray) -> float:
         dx = np.zeros_like(x)
         dx[self.system.active] = du.reshape(-1, 3)
-        return float(max_inversion_free_step(x, dx, self.terms[0].rest.tets, self.system.elems, 16))
+        return float(max_inversion_free_step(x, dx, self.system.tets, self.system.elems, 16))
 
 
 def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=None) -> tuple[np.ndarray, SolveReport]:

@@ -40,13 +40,14 @@ class DofSystem:
     are left out of the system; prescribed components of the remaining ("active") nodes keep
     their rows with a unit diagonal, so the matrix stays 3x3-blocked (what AMG wants).
 
-    Attributes: ``active (N,)`` node ids of the system rows; ``row_of (n,)`` node -> block row
+    Attributes: ``tets``; ``active (N,)`` node ids of the system rows; ``row_of (n,)`` node -> block row
     or -1; ``fixed_active (N, 3)``; ``indptr, indices`` (BSR pattern); ``e2b (m, 4, 4)`` block
     index per element node pair or -1; ``colour_ptr, colour_elems`` elements grouped by colour.
     """
 
     def __init__(self, tets: np.ndarray, n_nodes: int, fixed: np.ndarray, elems: np.ndarray):
         tets = np.ascontiguousarray(tets, dtype=np.int32)
+        self.tets = tets
         fixed = np.asarray(fixed, dtype=bool)
         if fixed.shape != (n_nodes, 3):
             raise FacesimError(f"fixed: expected a boolean mask of shape ({n_nodes}, 3), got {fixed.shape}")

@@ -191,28 +191,25 @@ def _add_markers(plotter, model: FaceModel, x) -> None:
             plotter.add_mesh(glyphs, color=colour, smooth_shading=True)
 
 
-def _set_camera(plotter, points: np.ndarray, view: str) -> None:
+def _set_camera(plotter, points: np.ndarray, view: str, fit_drawn: bool = True) -> None:
+    """Camera looking along ``view`` at the bounding box of ``points``. ``fit_drawn``: fit the
+    distance to what is drawn (VTK's reset); otherwise to the box of ``points`` alone, so a
+    sequence framed on the same points keeps one camera."""
     direction, up = (np.asarray(v, dtype=np.float64) for v in VIEWS[view])
     direction /= np.linalg.norm(direction)
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre = 0.5 * (lo + hi)
-    distance = 3.0 * float(np.linalg.norm(hi - lo)) + 1.0
+    if fit_drawn:
+        distance = 3.0 * float(np.linalg.norm(hi - lo)) + 1.0
+    else:
+        angle = np.deg2rad(plotter.camera.view_angle)
+        distance = 0.5 * float(np.linalg.norm(hi - lo)) / np.sin(angle / 2) / 1.35
     plotter.camera_position = [tuple(centre + distance * direction), tuple(centre), tuple(up)]
-    plotter.reset_camera()  # keeps the direction, fits the distance to what is drawn
-    plotter.camera.zoom(1.35)  # reset_camera fits the bounding sphere, which leaves wide margins
-
-
-def _set_camera_on(plotter, points: np.ndarray, view: str) -> None:
-    """Camera looking along ``view`` at the bounding box of ``points``, fitted to that box only."""
-    direction, up = (np.asarray(v, dtype=np.float64) for v in VIEWS[view])
-    direction /= np.linalg.norm(direction)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    centre = 0.5 * (lo + hi)
-    radius = 0.5 * float(np.linalg.norm(hi - lo))
-    angle = np.deg2rad(plotter.camera.view_angle)
-    distance = radius / np.sin(angle / 2) / 1.35
-    plotter.camera_position = [tuple(centre + distance * direction), tuple(centre), tuple(up)]
-    plotter.reset_camera_clipping_range()
+    if fit_drawn:
+        plotter.reset_camera()  # keeps the direction, fits the distance to what is drawn
+        plotter.camera.zoom(1.35)  # reset_camera fits the bounding sphere, which leaves wide margins
+    else:
+        plotter.reset_camera_clipping_range()
 
 
 def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
@@ -250,7 +247,7 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
         if frame_on is None:
             _set_camera(plotter, points, view)
         else:   # a camera that does not move between the frames of a sequence
-            _set_camera_on(plotter, np.asarray(frame_on, dtype=np.float64), view)
+            _set_camera(plotter, np.asarray(frame_on, dtype=np.float64), view, fit_drawn=False)
         image = plotter.screenshot(None, return_img=True)
     finally:
         plotter.close()
