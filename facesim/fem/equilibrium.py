@@ -195,8 +195,8 @@ class FaceSimulator:
 
     def force_scale(self, controls: Controls, extra_terms=()) -> float:
         """Residual force of the cold start (rest shape, bones placed): the reference "relative" refers to."""
-        prob = self.problem(controls, None, extra_terms)
-        return float(np.linalg.norm(prob.energy_and_gradient(self.attached_positions(controls))[1]))
+        prob = self.problem(controls, None, extra_terms)   # its start is the cold start
+        return float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]))
 
     def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None,
                     extra_terms=()) -> Equilibrium:
