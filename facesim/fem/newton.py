@@ -93,7 +93,11 @@ class SolveReport:
 
 class Problem:
     """Total energy of ``terms`` at activations ``a`` over ``system``, with prescribed positions
-    taken from ``x_fixed (n, 3)`` (free components of ``x_fixed`` are the starting guess)."""
+    taken from ``x_fixed (n, 3)`` (free components of ``x_fixed`` are the starting guess).
+
+    A term whose Hessian couples nodes that share no element (self-contact) also has
+    ``sparse_hessian(x, a, system, project) -> scipy.sparse (3N, 3N)`` over the system's dofs,
+    zero in prescribed rows and columns; it is added to the assembled matrix."""
 
     def __init__(self, terms, system: DofSystem, x_fixed: np.ndarray, a=None):
         self.terms = list(terms)
@@ -121,11 +125,18 @@ class Problem:
     def hessian(self, x, project: bool = True):
         t0 = time.perf_counter()
         data = self.system.new_data()
+        extra = []
         for t in self.terms:
             t.add_hessian(x, self.a, self.system, data, project)
+            if hasattr(t, "sparse_hessian"):   # couplings outside the mesh pattern (self-contact)
+                H = t.sparse_hessian(x, self.a, self.system, project)
+                if H is not None and H.nnz:
+                    extra.append(H)
         d = data[:, [0, 1, 2], [0, 1, 2]]
         diag = float(np.abs(d).mean()) if d.size else 1.0
         A = self.system.matrix(data, diag=diag if diag > 0 else 1.0)
+        if extra:
+            A = (A.tocsr() + sum(extra)).tobsr(blocksize=(3, 3))
         self.timing["assembly"] += time.perf_counter() - t0
         return A
 

@@ -234,6 +234,19 @@ class SlidingCondyleJaw:
                             xtol=1e-14, ftol=1e-14, gtol=1e-14)
         return self.transform(fit.x)
 
+    def natural_parameters(self, opening: float, hinge_drop: float = 18.0) -> np.ndarray:
+        """Parameters ``p (3,)`` of a symmetric opening by ``opening`` rad along the natural path:
+        pure rotation until the lower incisor has dropped by about ``hinge_drop`` mm (PHYSICS.md:
+        pure-hinge opening ~17-20 mm), then both condyles translate, linearly in the angle, to the
+        end of their tracks at the maximum opening."""
+        theta_max = self.geometry.max_opening
+        if not (np.isfinite(opening) and 0.0 <= opening <= theta_max + 1e-12):
+            raise FacesimError(f"opening: expected an angle in [0, {theta_max:.3g}] rad, got {opening}")
+        reach = np.linalg.norm(self.geometry.incisor - self.m)
+        hinge = min(hinge_drop / reach, 0.9 * theta_max)
+        slide = self.d * float(np.clip((opening - hinge) / (theta_max - hinge), 0.0, 1.0))
+        return np.array([float(opening), slide, slide])
+
     # --- jaw-model interface --------------------------------------------------------------------
 
     @property
