@@ -281,12 +281,18 @@ def cmd_simulate(args) -> int:
     if args.jaw:
         jaw_frames, T = read_jaw_csv(args.jaw, model, args.jaw_model)
         check_same_frames(args.jaw, jaw_frames, args.activations, frames)
+    from facesim.contact.scene import parse_collider_spec
+
+    base = Path(args.activations).parent
+    colliders = [parse_collider_spec(spec, base, i) for i, spec in enumerate(args.collider)]
     options = SimulateOptions(newton=NewtonOptions(linear_solver=args.solver), fps=args.fps,
-                              render=args.render or args.video, video=args.video, view=args.view, size=args.size)
+                              render=args.render or args.video, video=args.video, view=args.view, size=args.size,
+                              teeth_contact=args.teeth_contact, lip_contact=args.lip_contact,
+                              contact_stiffness=args.contact_stiffness)
     info = {"model": str(args.model), "activations": str(args.activations),
-            "jaw": str(args.jaw) if args.jaw else None}
-    s = simulate(model, A, args.output, frames=frames, jaw=T, options=options, resume=args.resume,
-                 overwrite=args.overwrite, progress=not args.quiet, info=info)
+            "jaw": str(args.jaw) if args.jaw else None, "collider_specs": list(args.collider)}
+    s = simulate(model, A, args.output, frames=frames, jaw=T, jaw_model=args.jaw_model, colliders=colliders,
+                 options=options, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, info=info)
     reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
     print(f"simulated {s['frames']} frames ({s['converged']} of {s['finished_frames']} converged{reused}) in "
           f"{s['wall_seconds']:.1f} s -> {args.output}")
@@ -458,6 +464,18 @@ def build_parser() -> argparse.ArgumentParser:
                           help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening) or "
                                "sliding-condyle (frame,opening,left_slide,right_slide in rad, mm, mm; Sifakis 2005) "
                                "(default: %(default)s)")
+    simulate.add_argument("--collider", action="append", default=[], metavar="SPEC",
+                          help="an external rigid object the skin cannot enter (repeatable): KIND:key=value,... "
+                               "e.g. 'sphere:radius=12,path=ball.csv' (centre per frame from frame,x,y,z rows, mm), "
+                               "'sphere:radius=12,centre=55:-30:70', 'capsule:radius=4,a=0:-40:90,b=0:-40:130', "
+                               "'plane:point=0:-70:0,normal=0:1:0', 'mesh:file=cup.stl,path=cup.csv'; optional "
+                               "bone=cranium|jaw carries it with a bone, name=LABEL. Relative files are looked up "
+                               "next to A.csv")
+    simulate.add_argument("--teeth-contact", action="store_true", help="keep the lips out of the teeth")
+    simulate.add_argument("--lip-contact", action="store_true",
+                          help="keep the upper and lower lips out of each other (self-contact)")
+    simulate.add_argument("--contact-stiffness", type=float, default=1.0, metavar="K",
+                          help="penalty stiffness of all contact, N/mm^3 (default: %(default)s)")
     simulate.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
     simulate.add_argument("--render", action="store_true",
                           help="also render every frame to OUT/png/frame_KKKKK.png (off screen)")

@@ -5,7 +5,9 @@ are written frame by frame into ``OUT/``:
 
 * ``skin/frame_KKKKK.ply`` the skin triangles at the deformed positions (mm);
 * ``state/frame_KKKKK.npz`` ``x (n, 3) float64`` node positions (mm), the frame's controls
-  ``a (n_muscles,)`` and ``jaw (4, 4)``, ``converged`` and ``error`` (the resume warm start);
+  ``a (n_muscles,)`` and ``jaw`` (the jaw model's parameters: a 4x4 transform for the rigid jaw,
+  (opening, right slide, left slide) for the sliding-condyle jaw), ``converged`` and ``error``
+  (the resume warm start);
 * ``png/frame_KKKKK.png`` with ``render`` (and ``video.mp4`` or ``video.gif`` with ``video``);
 * ``markers.csv`` (``frame,<name>_x,<name>_y,<name>_z``, mm) and ``markers.trc``;
 * ``frames.csv`` the solver log, one row per frame; ``report.json`` the summary.
@@ -44,7 +46,7 @@ from facesim.fem.newton import NewtonOptions
 from facesim.model import FaceModel
 
 FRAME_LOG_COLUMNS = ("frame", "converged", "iterations", "relative_residual", "residual_N", "seconds",
-                     "linear_iterations", "error")
+                     "linear_iterations", "penetration_mm", "error")
 JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
 JAW_OPENING = ("opening",)
 JAW_CONDYLE = ("opening", "left_slide", "right_slide")
@@ -84,7 +86,9 @@ def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.ndarray, np.ndarray]:
-    """Read a jaw pose CSV and return ``frames (F,) int64`` and ``T (F, 4, 4)`` mandible transforms.
+    """Read a jaw CSV and return ``frames (F,) int64`` and the jaw controls of ``jaw_model``:
+    ``(F, 4, 4)`` mandible transforms for the rigid jaw, ``(F, 3)`` parameters (opening rad,
+    right slide mm, left slide mm) for the sliding-condyle jaw.
 
     ``jaw_model="rigid"``, two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about
     the condyle midpoint ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a
@@ -92,7 +96,8 @@ def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.n
     :meth:`facesim.controls.RigidJaw.from_rotation`.
     ``jaw_model="sliding-condyle"``: ``frame,opening,left_slide,right_slide`` (rad, mm, mm) through
     :class:`facesim.kinematics.condyle.SlidingCondyleJaw` (Sifakis 2005 section 8), each value
-    within the model's range (opening in [0, max_opening], slides in [0, track_length]).
+    within the model's range (opening in [0, max_opening], slides in [0, track_length]); note
+    the column order of the file (left before right) differs from the parameter order.
     """
     from facesim.controls import RigidJaw
 
@@ -135,7 +140,7 @@ def _read_condyle_csv(path, model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
         name = ("opening", "right_slide", "left_slide")[c]
         raise FacesimError(f"{table.path}: data row {r + 1}, column {name!r}: {p[r, c]:g} outside "
                            f"[{lo[c]:g}, {hi[c]:g}] ({'rad' if c == 0 else 'mm'})")
-    return frame_numbers(table), np.array([jaw.transform(row) for row in p]).reshape(-1, 4, 4)
+    return frame_numbers(table), np.ascontiguousarray(p)
 
 
 def check_same_frames(path, frames, reference_path, reference_frames) -> None:
@@ -156,7 +161,9 @@ def check_same_frames(path, frames, reference_path, reference_frames) -> None:
 class SimulateOptions:
     """newton : solver options (``linear_solver`` "amg" or "direct"); fps : frame rate of the TRC
     time column and the video (Hz); render : a PNG per frame; video : also a movie of the PNGs
-    (implies render); view, size : camera (see :data:`facesim.viz.render.VIEWS`) and pixels."""
+    (implies render); view, size : camera (see :data:`facesim.viz.render.VIEWS`) and pixels;
+    teeth_contact, lip_contact, contact_stiffness : contact of the lips with the teeth and with
+    each other, penalty stiffness in N/mm^3 (also used for external colliders)."""
 
     newton: NewtonOptions = field(default_factory=NewtonOptions)
     fps: float = 30.0
@@ -164,12 +171,17 @@ class SimulateOptions:
     video: bool = False
     view: str = "front"
     size: tuple[int, int] = (640, 640)
+    teeth_contact: bool = False
+    lip_contact: bool = False
+    contact_stiffness: float = 1.0
 
     def __post_init__(self):
         if not (math.isfinite(self.fps) and self.fps > 0):
             raise FacesimError(f"fps: expected a frame rate > 0, got {self.fps}")
         if self.video:
             object.__setattr__(self, "render", True)
+        if not (math.isfinite(self.contact_stiffness) and self.contact_stiffness > 0):
+            raise FacesimError(f"contact stiffness: expected a positive number (N/mm^3), got {self.contact_stiffness}")
 
 
 class _Out:
@@ -266,20 +278,20 @@ def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str) -> N
                                             converged=converged, error=error))
 
 
-def _frame_row(k: int, converged: bool, report, seconds: float, error: str = "") -> dict:
+def _frame_row(k: int, converged: bool, report, seconds: float, error: str = "", penetration: float = 0.0) -> dict:
     if report is None:
         return {"frame": k, "converged": 0, "iterations": 0, "relative_residual": math.nan, "residual_N": math.nan,
-                "seconds": seconds, "linear_iterations": 0, "error": error}
+                "seconds": seconds, "linear_iterations": 0, "penetration_mm": penetration, "error": error}
     residual = float(report.residuals[-1]) if report.residuals else math.nan
     # SolveReport.relative_residual divides by the cold-start force, which is 0 for a frame at rest
     relative = residual / report.force_scale if report.force_scale > 0 else math.nan
     return {"frame": k, "converged": int(converged), "iterations": int(report.iterations),
             "relative_residual": relative, "residual_N": residual, "seconds": seconds,
-            "linear_iterations": int(sum(report.linear_iterations)), "error": error}
+            "linear_iterations": int(sum(report.linear_iterations)), "penetration_mm": penetration, "error": error}
 
 
 def _row_line(row: dict) -> str:
-    fmt = {"relative_residual": "{:.3e}", "residual_N": "{:.3e}", "seconds": "{:.3f}"}
+    fmt = {"relative_residual": "{:.3e}", "residual_N": "{:.3e}", "seconds": "{:.3f}", "penetration_mm": "{:.4f}"}
     return _csv_line([fmt.get(c, "{}").format(row[c]) for c in FRAME_LOG_COLUMNS])
 
 
@@ -288,7 +300,7 @@ def _parse_row(line: str) -> dict:
     row = dict(zip(FRAME_LOG_COLUMNS, values))
     for c in ("frame", "converged", "iterations", "linear_iterations"):
         row[c] = int(row[c])
-    for c in ("relative_residual", "residual_N", "seconds"):
+    for c in ("relative_residual", "residual_N", "seconds", "penetration_mm"):
         row[c] = float(row[c])
     return row
 
@@ -326,7 +338,7 @@ def write_video(pngs, out_dir, fps: float) -> tuple[Path, str]:
 
 
 # ------------------------------------------------------------------ the run
-def _validate(model: FaceModel, activations, frames, jaw):
+def _validate(model: FaceModel, activations, frames, jaw, jaw_model):
     A = np.asarray(activations, dtype=np.float64)
     if A.ndim != 2 or A.shape[1] != model.n_muscles or not len(A):
         raise FacesimError(f"activations: expected shape (frames, {model.n_muscles}), got {A.shape}")
@@ -337,12 +349,16 @@ def _validate(model: FaceModel, activations, frames, jaw):
             np.any(np.diff(frames) <= 0):
         raise FacesimError(f"frames: expected {len(A)} increasing integer frame numbers >= 0")
     frames = frames.astype(np.int64)
+    n_params = getattr(jaw_model, "n_params", None)
+    shape, what = ((4, 4), "4x4 transforms") if n_params is None else \
+        ((n_params,), f"rows of {n_params} {jaw_model.name} jaw parameters")
     if jaw is None:
-        J = np.broadcast_to(np.eye(4), (len(A), 4, 4))
+        rest = np.eye(4) if n_params is None else np.zeros(n_params)
+        J = np.broadcast_to(rest, (len(A), *shape))
     else:
         J = np.asarray(jaw, dtype=np.float64)
-        if J.shape != (len(A), 4, 4) or not np.isfinite(J).all():
-            raise FacesimError(f"jaw: expected {len(A)} finite 4x4 transforms, got shape {J.shape}")
+        if J.shape != (len(A), *shape) or not np.isfinite(J).all():
+            raise FacesimError(f"jaw: expected {len(A)} finite {what}, got shape {J.shape}")
     return A, frames, J
 
 
@@ -398,8 +414,9 @@ def _prepare_folder(out: _Out, fingerprint: str, resume: bool, overwrite: bool) 
 
 
 def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, caption: str = "",
-          skin: bool = True, png: bool = True) -> None:
-    """The skin PLY and, with ``options.render``, the PNG of frame ``k`` at positions ``x``."""
+          skin: bool = True, png: bool = True, colliders=()) -> None:
+    """The skin PLY and, with ``options.render``, the PNG of frame ``k`` at positions ``x`` (with the
+    posed external ``colliders``)."""
     from facesim.export import export_skin
 
     x = np.where(np.isfinite(x), x, model.X)   # a diverged solve must not break the files
@@ -409,24 +426,12 @@ def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, capt
         from facesim.viz.render import render_model
 
         render_model(model, out.png(k), view=options.view, x=x, size=options.size, title=f"frame {k}{caption}",
-                     frame_on=model.X)
+                     frame_on=model.X, extra=[c.surface() for c in colliders])
 
 
-def _solve(sim, controls, x_warm):
-    """One frame: ``(x (n, 3), converged, SolveReport or None, error message, seconds)``."""
-    t0 = time.perf_counter()
-    try:
-        eq = sim.equilibrium(controls, x0=x_warm)
-    except FacesimError as exc:   # a numerical failure of this frame (e.g. the linear solver)
-        x = sim.attached_positions(controls, x_warm)
-        return x, False, None, " ".join(str(exc).split()), time.perf_counter() - t0
-    finite = bool(np.isfinite(eq.x).all())
-    return (eq.x, eq.converged and finite, eq.report, "" if finite else "non-finite positions",
-            eq.report.seconds.get("total", time.perf_counter() - t0))
-
-
-def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, options: SimulateOptions | None = None,
-             resume: bool = False, overwrite: bool = False, progress: bool = True, info: dict | None = None) -> dict:
+def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, jaw_model="rigid", colliders=(),
+             options: SimulateOptions | None = None, resume: bool = False, overwrite: bool = False,
+             progress: bool = True, info: dict | None = None) -> dict:
     """Simulate a sequence of frames and write the results into ``out_dir`` (see the module doc).
 
     Parameters
@@ -435,7 +440,12 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, o
     activations : (F, n_muscles) float64 in [0, 1], one row per frame.
     out_dir : output folder (created if needed).
     frames : (F,) increasing integer frame numbers (default 0..F-1); they name the files.
-    jaw : (F, 4, 4) mandible transforms relative to the skull (mm), or None for the rest pose.
+    jaw : the jaw model's controls per frame, or None for the rest pose: ``(F, 4, 4)`` mandible
+        transforms relative to the skull (mm) for the rigid jaw, ``(F, 3)`` (opening rad, right
+        slide mm, left slide mm) for ``jaw_model="sliding-condyle"``.
+    jaw_model : ``"rigid"``, ``"sliding-condyle"`` or a jaw-model object (see :class:`~facesim.session.Simulation`).
+    colliders : external colliders (see :class:`~facesim.session.Simulation`); scripted ones are
+        posed at each frame number.
     options : :class:`SimulateOptions`.
     resume : continue a run in ``out_dir`` after its last complete frame.
     overwrite : remove the results of an earlier run in ``out_dir`` first. Without ``resume`` or
@@ -449,11 +459,22 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, o
     from tqdm import tqdm
 
     from facesim.controls import Controls
-    from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
     from facesim.mocap.io import marker_csv_header, marker_csv_line, read_markers_csv, write_trc
+    from facesim.session import Simulation, make_jaw_model
 
     options = options or SimulateOptions()
-    A, frames, J = _validate(model, activations, frames, jaw)
+    jaw_model = make_jaw_model(model, jaw_model)
+    A, frames, J = _validate(model, activations, frames, jaw, jaw_model)
+    sim = None
+
+    def simulation() -> Simulation:   # built on first use: a run with nothing left to do skips the setup
+        nonlocal sim
+        if sim is None:
+            sim = Simulation(model, jaw_model, colliders, teeth_contact=options.teeth_contact,
+                             lip_contact=options.lip_contact, contact_stiffness=options.contact_stiffness,
+                             newton=options.newton)
+        return sim
+
     if options.render:
         from facesim.viz.render import VIEWS
 
@@ -474,7 +495,10 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, o
         "n_markers": model.n_markers,
         "options": {"solver": options.newton.linear_solver, "rtol": options.newton.rtol,
                     "max_iterations": options.newton.max_iterations, "fps": options.fps, "render": options.render,
-                    "video": options.video, "view": options.view, "size": list(options.size), "resume": resume},
+                    "video": options.video, "view": options.view, "size": list(options.size), "resume": resume,
+                    "jaw_model": getattr(jaw_model, "name", type(jaw_model).__name__),
+                    "teeth_contact": options.teeth_contact, "lip_contact": options.lip_contact,
+                    "contact_stiffness": options.contact_stiffness, "colliders": len(colliders)},
         "frames": len(frames), "first_frame": int(frames[0]), "last_frame": int(frames[-1]),
         "resumed_at_frame": int(frames[n_done]) if resume and n_done < len(frames) else None,
         "reused_frames": n_done,
@@ -485,27 +509,29 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, o
     # Warm start: the last converged complete frame (a diverged state is a poor starting guess).
     converged_before = [r["frame"] for r in rows if r["converged"]]
     x_warm = _load_x(out, converged_before[-1], model) if converged_before else None
-    for k in map(int, frames[:n_done]):   # files derived from the state of complete frames: redraw missing ones
+    for i, k in enumerate(map(int, frames[:n_done])):   # files derived from complete frames' states: redraw missing
         skin, png = not out.skin(k).is_file(), options.render and not out.png(k).is_file()
         if skin or png:
-            _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png)
+            posed = simulation().posed_colliders(k, Controls(A[i], jaw=None if jaw is None else J[i])) \
+                if png and colliders else ()
+            _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed)
 
     frame_log = _Log(out.frames_csv, log_header, old_rows)
     marker_log = _Log(out.markers_csv, mk_header, old_marks)
-    status, sim = "running", None
+    status = "running"
     try:
         with tqdm(total=len(frames), initial=n_done, desc="simulate", unit="frame", disable=not progress) as bar:
             for i in range(n_done, len(frames)):
                 k = int(frames[i])
-                if sim is None:   # built here, so a run with nothing left to do skips the setup
-                    sim = FaceSimulator(model, EquilibriumOptions(newton=options.newton))
-                x, converged, report, error, seconds = _solve(sim, Controls(A[i], jaw=None if jaw is None else J[i]),
-                                                              x_warm)
-                _save_state(out.state(k), k, x, A[i], J[i], converged, error)
-                _draw(out, model, k, x, options, "" if converged else " (not converged)")
+                t0 = time.perf_counter()
+                f = simulation().step(A[i], jaw=None if jaw is None else J[i], frame=k, x0=x_warm)
+                x, converged = f.x, f.converged
+                seconds = f.seconds if f.report is not None else time.perf_counter() - t0
+                _save_state(out.state(k), k, x, A[i], J[i], converged, f.error)
+                _draw(out, model, k, x, options, "" if converged else " (not converged)", colliders=f.colliders)
                 P = model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan)
                 marker_log.add(marker_csv_line(k, P))
-                row = _frame_row(k, converged, report, seconds, error)
+                row = _frame_row(k, converged, f.report, seconds, f.error, f.penetration)
                 frame_log.add(_row_line(row))   # last: the frame is complete once this row is on disk
                 rows.append(row)
                 if converged:

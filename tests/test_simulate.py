@@ -24,7 +24,7 @@ from facesim.simulate import SimulateOptions, read_activations_csv, read_jaw_csv
 ACTIVATIONS = "frame,zygomaticus_major_L,orbicularis_oris\n0,0,0\n1,1,0\n2,0.5,0.3\n"
 JAW = "frame,opening\n0,0\n1,0\n2,0.05\n"
 FRAME_LOG = ["frame", "converged", "iterations", "relative_residual", "residual_N", "seconds", "linear_iterations",
-             "error"]
+             "penetration_mm", "error"]
 
 
 def write(path, text):
@@ -207,11 +207,11 @@ def test_interrupted_run_keeps_finished_frames(box_model, tmp_path, monkeypatch)
     solve = FaceSimulator.equilibrium
     calls = []
 
-    def interrupted_at_third_frame(self, controls, x0=None):
+    def interrupted_at_third_frame(self, controls, x0=None, **kwargs):
         calls.append(controls)
         if len(calls) == 3:
             raise KeyboardInterrupt
-        return solve(self, controls, x0)
+        return solve(self, controls, x0, **kwargs)
 
     monkeypatch.setattr(FaceSimulator, "equilibrium", interrupted_at_third_frame)
     A = np.zeros((4, 2))   # at rest: no Newton step, the test is about the files
@@ -304,13 +304,50 @@ def test_sliding_condyle_jaw_csv(tmp_path):
     model = load_model(Path(__file__).resolve().parents[1] / "meshes" / "face_coarse.npz")
     f = tmp_path / "j.csv"
     f.write_text("frame,opening,left_slide,right_slide\n0,0,0,0\n1,0.3,8,5\n")
-    frames, T = read_jaw_csv(f, model, "sliding-condyle")
+    frames, p = read_jaw_csv(f, model, "sliding-condyle")
     assert list(frames) == [0, 1]
-    np.testing.assert_allclose(T[0], np.eye(4), atol=1e-12)
-    np.testing.assert_allclose(T[1], SlidingCondyleJaw(model.jaw).transform([0.3, 5.0, 8.0]), atol=1e-12)
+    # parameters in the jaw model's order (opening, right slide, left slide)
+    np.testing.assert_allclose(p, [[0.0, 0.0, 0.0], [0.3, 5.0, 8.0]], atol=0)
+    jaw = SlidingCondyleJaw(model.jaw)
+    np.testing.assert_allclose(jaw.transform(p[0]), np.eye(4), atol=1e-12)
     f.write_text("frame,opening,left_slide,right_slide\n0,0.3,40,0\n")
     with pytest.raises(FacesimError, match=r"j.csv: data row 1, column 'left_slide': 40 outside"):
         read_jaw_csv(f, model, "sliding-condyle")
     f.write_text("frame,opening\n0,0.3\n")
     with pytest.raises(FacesimError, match="left_slide"):
         read_jaw_csv(f, model, "sliding-condyle")
+
+
+def test_cli_sliding_condyle_jaw_and_a_scripted_collider(box_model_path, box_model, tmp_path):
+    """--jaw-model sliding-condyle keeps the parameters as the frame's jaw controls; --collider puts a
+    ball on a CSV path that the skin cannot enter; the rendered frames draw it."""
+    a = write(tmp_path / "a.csv", "frame,zygomaticus_major_L\n0,0\n1,0\n2,0.5\n")
+    j = write(tmp_path / "j.csv", "frame,opening,left_slide,right_slide\n0,0,0,0\n1,0.1,1,1\n2,0.2,2,3\n")
+    front = box_model.X[:, 2].max()
+    write(tmp_path / "ball.csv", f"frame,x,y,z\n0,0,15,{front + 20}\n2,0,15,{front + 5}\n")
+    out = tmp_path / "out"
+    assert simulate_cli(box_model_path, a, out, "--jaw", j, "--jaw-model", "sliding-condyle",
+                        "--collider", "sphere:radius=8,path=ball.csv,name=ball", "--render", "--size", "96x96") == 0
+    log = frame_log(out)
+    assert [r["converged"] for r in log] == ["1", "1", "1"]
+    pen = [float(r["penetration_mm"]) for r in log]
+    assert pen[0] == 0.0 and pen[2] < 0.1
+    with np.load(out / "state" / "frame_00002.npz") as z:
+        np.testing.assert_array_equal(z["jaw"], [0.2, 3.0, 2.0])   # (opening, right, left)
+        x = z["x"]
+    # the ball's centre reached front + 5 with radius 8: the node under it was pushed onto its surface
+    # (in and aside: frictionless contact on 10 mm elements)
+    under = np.argmin(np.linalg.norm(box_model.X - [0.0, 15.0, front], axis=1))
+    assert np.linalg.norm(x[under] - box_model.X[under]) > 2.0
+    assert abs(np.linalg.norm(x[under] - [0.0, 15.0, front + 5.0]) - 8.0) < 0.1
+    report = json.loads((out / "report.json").read_text())
+    assert report["options"]["jaw_model"] == "sliding-condyle" and report["collider_specs"] == [
+        "sphere:radius=8,path=ball.csv,name=ball"]
+    assert Image.open(out / "png" / "frame_00002.png").size == (96, 96)
+
+
+def test_cli_bad_collider_spec_exits_2(box_model_path, tmp_path, capsys):
+    a = write(tmp_path / "a.csv", ACTIVATIONS)
+    assert simulate_cli(box_model_path, a, tmp_path / "out", "--collider", "sphere:radius=8,path=missing.csv") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing.csv" in err[0] and "no such file" in err[0]

@@ -114,6 +114,11 @@ class SDF(_Evaluated):
         """``(d (k,) mm, G (k, 3), H (k, 3, 3) 1/mm or None)`` at points ``p (k, 3)`` mm."""
         return self._evaluate(p, _IDENTITY, hessian)
 
+    def surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """A triangle mesh of the zero level set for drawing: ``(vertices (nv, 3) mm, faces (nf, 3))``
+        in the local frame."""
+        raise NotImplementedError   # pragma: no cover - abstract
+
 
 class Sphere(SDF):
     """Ball of ``radius`` mm around ``centre (3,)`` mm: ``d = |p - c| - r``."""
@@ -124,6 +129,12 @@ class Sphere(SDF):
 
     def _kernel(self, P, R, t, d, G, H, want_h):
         K.sphere_sdf(P, R, t, self.centre, self.radius, d, G, H, want_h)
+
+    def surface(self):
+        import trimesh
+
+        m = trimesh.creation.icosphere(subdivisions=3, radius=self.radius)
+        return np.asarray(m.vertices) + self.centre, np.asarray(m.faces)
 
     def __repr__(self):
         return f"Sphere(centre={self.centre.tolist()}, radius={self.radius})"
@@ -144,6 +155,16 @@ class Plane(SDF):
     def _kernel(self, P, R, t, d, G, H, want_h):
         K.plane_sdf(P, R, t, self.point, self.normal, d, G, H, want_h)
 
+    def surface(self, half_size: float = 60.0):
+        """A square of ``2 half_size`` mm around ``point`` (a plane has no end)."""
+        n = self.normal
+        e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        corners = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+        V = np.array([self.point + half_size * (a * e1 + b * e2) for a, b in corners])
+        return V, np.array([[0, 1, 2], [0, 2, 3]])
+
     def __repr__(self):
         return f"Plane(point={self.point.tolist()}, normal={self.normal.tolist()})"
 
@@ -158,6 +179,18 @@ class Capsule(SDF):
 
     def _kernel(self, P, R, t, d, G, H, want_h):
         K.capsule_sdf(P, R, t, self.a, self.b, self.radius, d, G, H, want_h)
+
+    def surface(self):
+        import trimesh
+
+        axis = self.b - self.a
+        length = float(np.linalg.norm(axis))
+        m = trimesh.creation.capsule(height=length, radius=self.radius, count=[24, 24])   # along z, centred
+        V = np.asarray(m.vertices, dtype=np.float64)
+        if length > 0:
+            R = trimesh.geometry.align_vectors([0.0, 0.0, 1.0], axis / length)[:3, :3]
+            V = V @ R.T
+        return V + 0.5 * (self.a + self.b), np.asarray(m.faces)
 
     def __repr__(self):
         return f"Capsule(a={self.a.tolist()}, b={self.b.tolist()}, radius={self.radius})"
@@ -182,6 +215,7 @@ class MeshSDF(SDF):
             raise FacesimError(f"grid values: expected finite (nx, ny, nz) with every n >= 2, got {v.shape}")
         self.values = v
         self.build_seconds = 0.0
+        self.mesh = None   # (vertices, faces) of the source mesh, kept by from_mesh for drawing
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -245,7 +279,19 @@ class MeshSDF(SDF):
         values[inside] *= -1.0
         sdf = cls(lo, spacing, values)
         sdf.build_seconds = time.perf_counter() - t0
+        sdf.mesh = (V, F)
         return sdf
+
+    def surface(self):
+        """The source mesh, or the zero level set of the grid (marching cubes) without one."""
+        if self.mesh is not None:
+            return self.mesh
+        import pyvista as pv
+
+        grid = pv.ImageData(dimensions=self.shape, spacing=(self.spacing,) * 3, origin=self.origin)
+        grid.point_data["d"] = self.values.ravel(order="F")
+        iso = grid.contour([0.0], scalars="d").triangulate()
+        return np.asarray(iso.points, dtype=np.float64), np.asarray(iso.faces).reshape(-1, 4)[:, 1:]
 
     def _kernel(self, P, R, t, d, G, H, want_h):
         K.grid_sdf(P, R, t, self.origin, self.spacing, self.values, d, G, H, want_h)
@@ -282,6 +328,11 @@ class Collider(_Evaluated):
         """``(d (k,) mm, G (k, 3), H (k, 3, 3) 1/mm or None)`` at world points ``p (k, 3)`` mm (world
         gradient and Hessian)."""
         return self.sdf._evaluate(p, self.transform, hessian)
+
+    def surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(vertices (nv, 3), faces (nf, 3))`` of the shape's surface in the world (mm), for drawing."""
+        V, F = self.sdf.surface()
+        return V @ self.transform[:3, :3].T + self.transform[:3, 3], F
 
     def __repr__(self):
         return f"Collider({self.sdf!r}, t={self.transform[:3, 3].tolist()}{', ' + self.name if self.name else ''})"

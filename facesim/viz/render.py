@@ -44,6 +44,7 @@ GUM_COLOUR = "#c8707a"
 OTHER_COLLIDER_COLOUR = "#b8bcc4"
 MARKER_COLOUR = "#00d0ff"
 HEAD_MARKER_COLOUR = "#ffd21f"
+EXTRA_COLOUR = "#5b8fd9"   # external colliders (spheres, capsules, meshes of a scene)
 BACKGROUND = ("#16181d", "#3b404c")  # bottom, top of the gradient
 TEXT_COLOUR = "#f0f0f0"
 
@@ -214,7 +215,7 @@ def _set_camera(plotter, points: np.ndarray, view: str, fit_drawn: bool = True) 
 
 def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
                  size=(1200, 1200), x=None, legend: bool = True, title: str | None = None,
-                 muscle_threshold: float = 0.3, frame_on=None) -> np.ndarray:
+                 muscle_threshold: float = 0.3, frame_on=None, extra=()) -> np.ndarray:
     """Render the model and return the picture as an ``(h, w, 3)`` uint8 RGB array.
 
     Parameters are those of :func:`render_model` (without the path).
@@ -235,6 +236,9 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
         _add_surfaces(plotter, model, x, show)
         if "markers" in show:
             _add_markers(plotter, model, x)
+        for vertices, faces in extra:   # external colliders (world frame)
+            plotter.add_mesh(_polydata(np.asarray(vertices, dtype=np.float64), np.asarray(faces)), color=EXTRA_COLOUR,
+                             smooth_shading=True, specular=0.4)
         if "skin" in show and len(model.skin):
             # No depth peeling: it renders blank on Mesa's llvmpipe through EGL. VTK draws
             # translucent actors after the opaque ones, which is enough for one skin layer.
@@ -314,7 +318,7 @@ def _save_png(image: np.ndarray, path) -> Path:
 
 def render_model(model: FaceModel, path, view: str = "front", show=DEFAULT_SHOW, skin_opacity: float = 0.35,
                  size=(1200, 1200), x=None, legend: bool = True, title: str | None = None,
-                 muscle_threshold: float = 0.3, frame_on=None) -> Path:
+                 muscle_threshold: float = 0.3, frame_on=None, extra=()) -> Path:
     """Render one view of the model to a PNG and return its path.
 
     Parameters
@@ -334,9 +338,11 @@ def render_model(model: FaceModel, path, view: str = "front", show=DEFAULT_SHOW,
     title : optional caption in the lower left corner.
     frame_on : optional ``(k, 3)`` points (e.g. ``model.X``) the camera is fitted to instead of
         what is drawn, so the frames of a sequence share one camera.
+    extra : ``(vertices (nv, 3), faces (nf, 3))`` surfaces to draw as well, in world mm (external
+        colliders, e.g. ``Collider.surface()``).
     """
     return _save_png(render_image(model, view, show, skin_opacity, size, x, legend, title, muscle_threshold,
-                                  frame_on), path)
+                                  frame_on, extra), path)
 
 
 def tile_images(images, columns: int | None = None, fill=BACKGROUND[0]) -> np.ndarray:
