@@ -1,0 +1,16 @@
+"""The shipped face model, loaded once, for default jaw geometry and mandible points."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+import facesim
+
+
+@lru_cache(maxsize=1)
+def shipped_model():
+    """The immutable ``meshes/face_coarse.npz`` model of the repository holding ``facesim``."""
+    from facesim.model import FaceModel
+
+    return FaceModel.load(Path(facesim.__file__).resolve().parent.parent / "meshes" / "face_coarse.npz")

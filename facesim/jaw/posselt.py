@@ -1,0 +1,390 @@
+"""The empirical jaw rig on Posselt's envelope (Zoss, Bradley, Bérard, Beeler 2018).
+
+The lower incisal point (the reference point) of a jaw can only reach a bounded volume, Posselt's
+envelope of motion, shaped like a shield. Every point inside it is reached by essentially one
+mandible pose, so the rig maps a 3D point to a 6D pose (eq. 3) and exposes three controls: the
+point itself (direct manipulation) or three sliders in the unit cube.
+
+Pieces, all in the jaw frame (:mod:`facesim.jaw.frame`; x left, y up, z forward, origin at the
+reference point at rest):
+
+- ``Shield`` -- the envelope surface from captured border movements (section 3.4): six curves
+  from tooth contact (s_y = 0) down to the maximum opening (s_y = 1), each fitted by a smoothing
+  spline (least squares, cubic) of its lateral and antero-posterior coordinates against its
+  normalised height: the
+  posterior (retruded) and anterior (protruded) midline curves and the four vertical boundary
+  curves at the right/left posterior and anterior corners. The unit cube maps onto the envelope::
+
+      S(s) = (1 − s_z) E(C_RP, P, C_LP; s_x) + s_z E(C_RA, A, C_LA; s_x)     (curves at s_y)
+
+  where E runs linearly from the right corner curve (s_x = 0) to the midline curve (s_x = 1/2)
+  and on to the left corner curve (s_x = 1): the horizontal sections are the "gothic arch" of
+  the envelope, with the midline curves as its ridges. The six cube faces map to the six faces
+  of the shield; ``bijectivity`` measures how far the map is from folding (eq. 15).
+- ``PosseltRig`` -- the RBF map (eq. 3): the pose of a reference-point position p is the
+  rotation ``exp(omega(p))`` about the reference point followed by the translation taking it to
+  p, with omega(p) = Σ_i w_i phi(|p − c_i|) + a + B p a cubic radial basis function
+  (phi(r) = r³) over centres c_i chosen by farthest-point sampling, fitted to the captured
+  (p, omega) pairs by ridge-regularised least squares (eq. 9). The translation is thus exact
+  (the point is where it is asked to be) and only the rotation is interpolated.
+- Points outside the envelope are projected onto the shield (the closest point of the
+  parameterised solid), so the rig only produces poses the subject could reach.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline, make_lsq_spline
+from scipy.linalg import solve
+
+from facesim.errors import FacesimError, ModelFileError
+from facesim.jaw import se3
+from facesim.jaw.evaluate import farthest_points
+from facesim.jaw.frame import JawFrame
+from facesim.jaw.motion import BORDER_CURVES
+from facesim.jaw.rigfile import load_rig, save_rig
+
+CURVES = BORDER_CURVES    # ("posterior", "anterior", "right_posterior", "left_posterior", "right_anterior", "left_anterior")
+_KNOTS = 41               # samples stored per curve, s_y = linspace(0, 1, _KNOTS)
+
+
+# --- the envelope ------------------------------------------------------------------------------
+
+def _fit_curve(points: np.ndarray, name: str) -> np.ndarray:
+    """``(_KNOTS, 3)`` samples of one border curve from its reference-point positions ``(n, 3)``
+    (jaw frame, mm): x and z smoothed against t = normalised depth below the highest point."""
+    if len(points) < 8:
+        raise FacesimError(f"border movement {name!r}: expected at least 8 frames, got {len(points)}")
+    y = points[:, 1]
+    top, bottom = y.max(), y.min()
+    if top - bottom < 5.0:
+        raise FacesimError(f"border movement {name!r}: the reference point moves only {top - bottom:.1f} mm "
+                           f"vertically (expected an opening to the maximum)")
+    t = (top - y) / (top - bottom)
+    # average repeated depths (opening and closing passes), then a least-squares cubic spline
+    # with knots at quantiles of the data (so every knot span holds data)
+    bins = np.clip((t * 80).astype(int), 0, 79)
+    used = np.unique(bins)
+    tb = np.array([t[bins == b].mean() for b in used])
+    xz = np.array([points[bins == b][:, [0, 2]].mean(axis=0) for b in used])
+    knots = np.linspace(0.0, 1.0, _KNOTS)
+    out = np.empty((_KNOTS, 3))
+    out[:, 1] = top - knots * (top - bottom)
+    n_inner = int(np.clip(len(tb) // 6, 0, 10))
+    if len(tb) >= 6:
+        inner = np.quantile(tb, np.linspace(0, 1, n_inner + 2)[1:-1])
+        inner = inner[(inner > tb[0] + 1e-9) & (inner < tb[-1] - 1e-9)]
+        tk = np.r_[[tb[0]] * 4, inner, [tb[-1]] * 4]
+        spline = make_lsq_spline(tb, xz, tk, k=3)
+        out[:, [0, 2]] = spline(np.clip(knots, tb[0], tb[-1]))
+    else:
+        out[:, [0, 2]] = np.stack([np.interp(knots, tb, xz[:, k]) for k in range(2)], axis=1)
+    return out
+
+
+def _untangle(curves: np.ndarray, gap: float = 0.05) -> np.ndarray:
+    """Curves ``(6, K, 3)`` with every anterior curve at least ``gap`` mm in front of its
+    posterior partner and every section ordered right < midline < left by ``gap`` mm.
+
+    Toward the maximum opening the sections shrink to a line and the fitted curves, each
+    carrying its own noise, may cross by a fraction of a millimetre; crossing pairs are moved
+    apart symmetrically about their mean, so the cube map cannot fold over itself."""
+    c = curves.copy()
+    idx = {name: i for i, name in enumerate(CURVES)}
+
+    def separate(lo, hi, axis):
+        a, b = c[lo, :, axis], c[hi, :, axis]
+        short = b - a < gap
+        mean = 0.5 * (a + b)
+        c[lo, short, axis], c[hi, short, axis] = mean[short] - gap / 2, mean[short] + gap / 2
+
+    for back, front in (("posterior", "anterior"), ("right_posterior", "right_anterior"),
+                        ("left_posterior", "left_anterior")):
+        separate(idx[back], idx[front], 2)
+    for right, mid, left in (("right_posterior", "posterior", "left_posterior"),
+                             ("right_anterior", "anterior", "left_anterior")):
+        separate(idx[right], idx[mid], 0)
+        separate(idx[mid], idx[left], 0)
+    return c
+
+
+class Shield:
+    """Posselt's envelope as six border curves and the unit-cube map ``S``.
+
+    curves : (6, K, 3) mm, jaw frame, samples of the ``CURVES`` at s_y = linspace(0, 1, K).
+    """
+
+    def __init__(self, curves):
+        curves = np.array(curves, dtype=np.float64)
+        if curves.ndim != 3 or curves.shape[0] != len(CURVES) or curves.shape[2] != 3 or curves.shape[1] < 4:
+            raise FacesimError(f"shield: expected curves (6, K >= 4, 3), got {curves.shape}")
+        if not np.isfinite(curves).all():
+            raise FacesimError("shield: curves must be finite")
+        curves.setflags(write=False)
+        self.curves = curves
+        knots = np.linspace(0.0, 1.0, curves.shape[1])
+        self._spline = CubicSpline(knots, np.moveaxis(curves, 1, 0), bc_type="natural")   # s_y -> (6, 3)
+        self._dspline = self._spline.derivative()
+        # a coarse table of the map, for the initial guesses of ``sliders``
+        g = np.stack(np.meshgrid(np.linspace(0, 1, 9), np.linspace(0, 1, 17), np.linspace(0, 1, 9),
+                                 indexing="ij"), -1).reshape(-1, 3)
+        self._table = (g, self.point(g))
+
+    @classmethod
+    def from_points(cls, border: dict[str, np.ndarray]) -> Shield:
+        """Shield from the reference-point positions ``{curve name: (n, 3) mm, jaw frame}`` of the
+        six border movements."""
+        missing = [c for c in CURVES if c not in border]
+        if missing:
+            raise FacesimError(f"border movements missing: {', '.join(missing)} (need all of {', '.join(CURVES)})")
+        return cls(_untangle(np.stack([_fit_curve(np.asarray(border[c], dtype=np.float64).reshape(-1, 3), c)
+                                       for c in CURVES])))
+
+    def _edges(self, s, derivative: bool = False):
+        """Posterior and anterior section edges at s (N, 3) -> (N, 3) each, plus their s_x and s_y
+        derivatives when asked."""
+        c = self._spline(s[:, 1])                                # (N, 6, 3)
+        sx = s[:, 0][:, None]
+        right = sx < 0.5
+        a = np.where(right, 2 * sx, 2 * sx - 1)                 # position within the half
+        # E(corner_R, mid, corner_L): corner_R -> mid on [0, 1/2], mid -> corner_L on [1/2, 1]
+        def edge(cr, mid, cl):
+            return np.where(right, cr + a * (mid - cr), mid + a * (cl - mid))
+
+        post = edge(c[:, 2], c[:, 0], c[:, 3])
+        ante = edge(c[:, 4], c[:, 1], c[:, 5])
+        if not derivative:
+            return post, ante
+        dc = self._dspline(s[:, 1])
+
+        def dedge_dx(cr, mid, cl):
+            return np.where(right, 2 * (mid - cr), 2 * (cl - mid))
+
+        return (post, ante, dedge_dx(c[:, 2], c[:, 0], c[:, 3]), dedge_dx(c[:, 4], c[:, 1], c[:, 5]),
+                edge(dc[:, 2], dc[:, 0], dc[:, 3]), edge(dc[:, 4], dc[:, 1], dc[:, 5]))
+
+    def point(self, s) -> np.ndarray:
+        """Envelope points ``(..., 3)`` mm (jaw frame) of sliders ``s (..., 3)`` in [0, 1]³
+        (s_x right -> left, s_y closed -> open, s_z retruded -> protruded)."""
+        s = np.asarray(s, dtype=np.float64)
+        flat = s.reshape(-1, 3)
+        post, ante = self._edges(flat)
+        sz = flat[:, 2:3]
+        return ((1 - sz) * post + sz * ante).reshape(s.shape)
+
+    def jacobian(self, s) -> np.ndarray:
+        """``(N, 3, 3)`` derivative of ``point`` (rows x, y, z; columns s_x, s_y, s_z) at ``s (N, 3)``."""
+        flat = np.asarray(s, dtype=np.float64).reshape(-1, 3)
+        post, ante, dpx, dax, dpy, day = self._edges(flat, derivative=True)
+        sz = flat[:, 2:3]
+        return np.stack([(1 - sz) * dpx + sz * dax, (1 - sz) * dpy + sz * day, ante - post], axis=2)
+
+    def _initial(self, p):
+        g, X = self._table
+        d2 = (p * p).sum(1)[:, None] - 2 * p @ X.T + (X * X).sum(1)[None]
+        return g[np.argmin(d2, axis=1)].copy()
+
+    def sliders(self, points, iterations: int = 40):
+        """Closest cube parameters of envelope points.
+
+        points : (N, 3) mm, jaw frame. Returns ``s (N, 3)`` in [0, 1]³ minimising |S(s) − p| (a
+        bound-constrained Gauss-Newton per point, batched) and the distance ``(N,)`` mm from
+        each point to S(s): zero inside the envelope, the distance to the shield outside.
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        s = self._initial(p)
+        mu = np.full(len(p), 1e-6)
+        r = self.point(s) - p
+        cost = (r * r).sum(1)
+        active = np.flatnonzero(cost > 1e-24)
+        for _ in range(iterations):
+            sa, ra = s[active], r[active]
+            J = self.jacobian(sa)
+            g = np.einsum("nij,ni->nj", J, ra)
+            # variables held at a bound by a gradient pushing outward are frozen
+            free = ~(((sa <= 0) & (g > 0)) | ((sa >= 1) & (g < 0)))
+            H = np.einsum("nij,nil->njl", J, J) * free[:, :, None] * free[:, None, :]
+            H += np.eye(3) * (mu[active, None, None] * (1 + np.diagonal(H, axis1=1, axis2=2))[:, None, :]
+                              + (~free)[:, None, :])
+            step = -np.linalg.solve(H, (g * free)[..., None])[..., 0]
+            s_new = np.clip(sa + step, 0.0, 1.0)
+            r_new = self.point(s_new) - p[active]
+            cost_new = (r_new * r_new).sum(1)
+            better = cost_new < cost[active]
+            idx = active[better]
+            s[idx], r[idx], cost[idx] = s_new[better], r_new[better], cost_new[better]
+            mu[active] = np.where(better, np.maximum(mu[active] / 5, 1e-12), mu[active] * 10)
+            moved = np.abs(s_new - sa).max(axis=1)
+            done = (cost[active] < 1e-24) | (better & (moved < 1e-10)) | (mu[active] > 1e6)
+            active = active[~done]
+            if len(active) == 0:
+                break
+        return s, np.sqrt(cost)
+
+    def project(self, points):
+        """``(N, 3)`` points of the envelope closest to ``points (N, 3)`` (jaw frame, mm): inside
+        points unchanged, outside points onto the shield."""
+        s, d = self.sliders(points)
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return np.where((d < 1e-6)[:, None], p, self.point(s))
+
+    def bijectivity(self, n: int = 16) -> float:
+        """Zoss eq. 15 in the form |∫ det J ds| / ∫ |det J| ds over the unit cube (midpoint rule,
+        ``n`` samples per axis): 1 when the cube map never folds (det J keeps its sign), smaller
+        the more of the cube is mapped inside out."""
+        c = (np.arange(n) + 0.5) / n
+        s = np.stack(np.meshgrid(c, c, c, indexing="ij"), -1).reshape(-1, 3)
+        det = np.linalg.det(self.jacobian(s))
+        return float(abs(det.sum()) / max(np.abs(det).sum(), 1e-300))
+
+    def face_samples(self, n: int = 9) -> np.ndarray:
+        """``(6 n², 3)`` slider values covering the six faces of the unit cube."""
+        c = np.linspace(0.0, 1.0, n)
+        a, b = (v.ravel() for v in np.meshgrid(c, c, indexing="ij"))
+        faces = []
+        for axis in range(3):
+            for value in (0.0, 1.0):
+                s = np.empty((len(a), 3))
+                s[:, axis] = value
+                s[:, [k for k in range(3) if k != axis]] = np.c_[a, b]
+                faces.append(s)
+        return np.concatenate(faces)
+
+
+# --- the rig -----------------------------------------------------------------------------------
+
+def _design(p, centres, scale):
+    """RBF design matrix ``(N, M + 4)``: [phi(|p − c_i| / scale) | 1 | p / scale], phi(r) = r³."""
+    d = np.linalg.norm(p[:, None, :] - centres[None], axis=2) / scale
+    return np.concatenate([d**3, np.ones((len(p), 1)), p / scale], axis=1)
+
+
+@dataclass(frozen=True)
+class PosseltRig:
+    """A fitted Posselt-envelope rig.
+
+    frame : JawFrame; shield : Shield (jaw frame);
+    centres : (M, 3) mm RBF centres (jaw frame); coefficients : (M + 4, 3) the weights and the
+        affine part of omega(p) (rad); scale : mm, the RBF length unit.
+
+    Poses are mandible-relative-to-skull transforms in the skull frame (mm); points are
+    reference-point positions in the skull frame unless a method says otherwise.
+    """
+
+    frame: JawFrame
+    shield: Shield
+    centres: np.ndarray
+    coefficients: np.ndarray
+    scale: float
+
+    @property
+    def reference_point(self) -> np.ndarray:
+        """(3,) mm, the reference point at rest (skull frame)."""
+        return self.frame.origin
+
+    def _pose_local(self, p_local: np.ndarray) -> np.ndarray:
+        omega = _design(p_local, self.centres, self.scale) @ self.coefficients
+        return se3.from_rt(se3.so3_exp(omega), p_local)
+
+    def pose_at(self, points, project: bool = True) -> np.ndarray:
+        """Direct manipulation: poses ``(N, 4, 4)`` placing the reference point at ``points (N, 3)``
+        mm (skull frame); with ``project`` points outside the envelope go to the shield first."""
+        p = self.frame.to_local(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        if project:
+            p = self.shield.project(p)
+        return self.frame.pose_to_world(self._pose_local(p))
+
+    def pose_from_sliders(self, s) -> np.ndarray:
+        """Slider control: poses ``(N, 4, 4)`` of ``s (N, 3)`` in [0, 1]³ (values are clipped)."""
+        s = np.clip(np.asarray(s, dtype=np.float64).reshape(-1, 3), 0.0, 1.0)
+        return self.frame.pose_to_world(self._pose_local(self.shield.point(s)))
+
+    def sliders_of(self, poses) -> np.ndarray:
+        """Slider values ``(N, 3)`` of the reference point of ``poses (N, 4, 4)``."""
+        return self.shield.sliders(self.reference_trajectory(poses))[0]
+
+    def reference_trajectory(self, poses) -> np.ndarray:
+        """``(N, 3)`` mm jaw-frame positions of the reference point under ``poses (N, 4, 4)``."""
+        return self.frame.pose_to_local(np.asarray(poses, dtype=np.float64))[:, :3, 3]
+
+    def reproduce(self, poses, points=None, weights=None) -> np.ndarray:
+        """The rig driven by the captured reference point: ``(N, 4, 4)`` (``points`` and ``weights``
+        are unused; the signature matches the classic rigs)."""
+        return self.frame.pose_to_world(self._pose_local(self.shield.project(self.reference_trajectory(poses))))
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """``(3, 2)`` slider ranges: the unit cube."""
+        return np.array([[0.0, 1.0]] * 3)
+
+    def bijectivity(self, n: int = 16) -> float:
+        """The shield map's bijectivity measure (:meth:`Shield.bijectivity`)."""
+        return self.shield.bijectivity(n)
+
+    # --- files ----------------------------------------------------------------------------------
+
+    def save(self, path):
+        """Write the rig to a versioned ``.npz`` (:mod:`facesim.jaw.rigfile`)."""
+        return save_rig(path, "posselt", {
+            "frame_origin": self.frame.origin, "frame_axes": self.frame.axes, "curves": self.shield.curves,
+            "centres": self.centres, "coefficients": self.coefficients}, {"scale": self.scale, "curves": list(CURVES)})
+
+    @staticmethod
+    def load(path) -> PosseltRig:
+        """Read a rig written by :meth:`save` (one-line errors naming the file and field)."""
+        arrays, meta = load_rig(path, "posselt", ("frame_origin", "frame_axes", "curves", "centres", "coefficients"),
+                                ("scale", "curves"))
+        if tuple(meta["curves"]) != CURVES:
+            raise ModelFileError(path, f"field 'meta.curves': expected {list(CURVES)}")
+        c, w = arrays["centres"], arrays["coefficients"]
+        if c.ndim != 2 or c.shape[1] != 3 or w.shape != (len(c) + 4, 3):
+            raise ModelFileError(path, f"fields 'centres' / 'coefficients': expected (M, 3) and (M + 4, 3), "
+                                       f"got {c.shape} and {w.shape}")
+        try:
+            return PosseltRig(JawFrame(arrays["frame_origin"], arrays["frame_axes"]), Shield(arrays["curves"]),
+                              c.astype(np.float64), w.astype(np.float64), float(meta["scale"]))
+        except FacesimError as exc:
+            raise ModelFileError(path, str(exc)) from None
+
+
+def fit_posselt(session=None, *, poses=None, reference_point=None, border=None, frame: JawFrame | None = None,
+                centres: int = 300, smoothing: float = 1e-6, scale: float = 10.0) -> PosseltRig:
+    """Fit a :class:`PosseltRig` to captured poses.
+
+    session : a :class:`facesim.jaw.motion.Session` (poses, reference point and labelled border
+        movements); or give ``poses (N, 4, 4)``, ``reference_point (3,)`` mm and ``border`` =
+        ``{curve name: frame indices}`` for the six ``CURVES`` instead.
+    frame : jaw frame (default ``JawFrame.from_poses``).
+    centres : number of RBF centres (farthest-point sample of the data); smoothing : ridge weight
+        of eq. 9 relative to the data term; scale : mm, RBF length unit.
+    """
+    if session is not None:
+        poses, reference_point = session.poses, session.reference_point
+        border = {c: session.frames(c) for c in CURVES}
+    if poses is None or reference_point is None or border is None:
+        raise FacesimError("fit_posselt: expected a session, or poses, reference_point and border frames")
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) < 10 or not np.isfinite(poses).all():
+        raise FacesimError(f"poses: expected finite (N, 4, 4) with N >= 10, got {poses.shape}")
+    if not smoothing >= 0 or not scale > 0 or int(centres) < 4:
+        raise FacesimError("fit_posselt: expected smoothing >= 0, scale > 0 mm and at least 4 centres")
+    if frame is None:
+        frame = JawFrame.from_poses(poses, reference_point)
+    local = frame.pose_to_local(poses)
+    p = local[:, :3, 3]
+    omega = se3.so3_log(local[:, :3, :3])
+    shield = Shield.from_points({c: p[np.asarray(border[c], dtype=int)] for c in CURVES if c in border})
+    C = p[farthest_points(p, int(centres))]
+    A = _design(p, C, scale)
+    # eq. 9: least squares on the data with a ridge on the RBF weights (not on the affine part)
+    # (normal equations: a dense least-squares solver is no more accurate here and, on a busy
+    # multi-threaded BLAS, a hundred times slower)
+    H = A.T @ A
+    H[np.arange(len(C)), np.arange(len(C))] += smoothing * len(p)
+    coefficients = solve(H, A.T @ omega, assume_a="sym")
+    return PosseltRig(frame, shield, C, coefficients, float(scale))
+
+
+__all__ = ["CURVES", "PosseltRig", "Shield", "fit_posselt"]
