@@ -95,6 +95,14 @@ class AMGSolver:
             raise FacesimError(f"linear solve: CG did not reach rtol {rtol:g} in {self.maxiter} iterations")
         return x
 
+    def solve_many(self, A, b: np.ndarray, B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+        """Solve ``A X = b`` for the columns of ``b (N, k)`` against one fresh hierarchy of ``A``."""
+        if A.shape[0] < self.direct_below:
+            return self._direct.solve_many(A, b)
+        self.setup(A, B)
+        return np.column_stack([self.solve(A, b[:, j], B, rtol) for j in range(b.shape[1])]) if b.shape[1] else \
+            np.zeros_like(b)
+
 
 class DirectSolver:
     """Sparse LU (SuperLU) of every matrix it is given; ``stats`` may be shared with another solver."""
@@ -118,6 +126,10 @@ class DirectSolver:
         self.stats.iterations.append(1)
         self.stats.solve_seconds += time.perf_counter() - t
         return x
+
+    def solve_many(self, A, b: np.ndarray, B=None, rtol: float = 0.0) -> np.ndarray:
+        """Solve ``A X = b`` for all columns of ``b (N, k)`` with one factorisation."""
+        return self.solve(A, np.asarray(b, dtype=np.float64), B, rtol)
 
 
 def make_linear_solver(kind: str):

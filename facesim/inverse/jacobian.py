@@ -1,0 +1,247 @@
+"""Implicit Jacobians of the quasistatic equilibrium (Sifakis, Neverov, Fedkiw 2005 eqs. 5-6).
+
+At an equilibrium ``x(c)`` the free-node gradient of the total energy vanishes,
+``g_U(x_U, c) = 0``, for every control vector ``c`` (activations, jaw parameters). Differentiating,
+
+    K dx_U/dc = - dg_U/dc,        K = d2E/dx_U2  (the true tangent, not PSD-projected)
+
+with ``dg_U/da_i = -G_i(x)`` (the muscle's active force column: the force is affine in the
+activation, eq. 5) and ``dg_U/dq_k`` the force on the free nodes from moving only the bones (and
+the colliders they carry) along the jaw parameter ``q_k`` (eq. 6, ``-K_UC dX_C/dq_k``). That bone
+column is the directional derivative of the gradient at fixed free positions, taken by a central
+difference (exact to O(h^2) ~ 1e-10 relative: the force is smooth in the bone pose), so the same
+code covers flesh, muscles and contact terms whose colliders ride on the bones.
+
+All columns are solved against one factorisation (direct) or one AMG hierarchy (CG per column).
+Attached nodes move with their bone analytically; the head (optional) moves everything rigidly
+(no solve: the energy is invariant under a rigid motion of the whole face). Markers are
+``P = sum b_k x_k + offset * n(x)``; :func:`marker_jacobian` is their exact derivative.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from facesim.controls import Controls
+from facesim.errors import FacesimError
+from facesim.fem.linear import make_linear_solver
+from facesim.fem.newton import Problem
+from facesim.model import FaceModel
+
+HEAD_NAMES = ("head_rx", "head_ry", "head_rz", "head_tx", "head_ty", "head_tz")
+
+
+def _cross_matrices(v: np.ndarray) -> np.ndarray:
+    """``(k, 3, 3)`` matrices [v]x with [v]x w = v x w."""
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
+    return out
+
+
+def marker_jacobian(model: FaceModel, x=None) -> sp.csr_matrix:
+    """``(3r, 3n)`` derivative of :meth:`FaceModel.marker_positions` with respect to the node positions.
+
+    ``P = sum_k b_k x_k + o n/|n|`` with ``n = (x1 - x0) x (x2 - x0)``:
+    ``dP/dx_k = b_k I + o (I - n^ n^T)/|n| dn/dx_k``, ``dn/dx1 = -[e2]x``, ``dn/dx2 = [e1]x``,
+    ``dn/dx0 = -(dn/dx1 + dn/dx2)``."""
+    x = model.X if x is None else np.asarray(x, dtype=np.float64)
+    mk = model.markers
+    tri = model.skin[mk.triangle]                 # (r, 3) node ids
+    p = x[tri]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    n = np.cross(e1, e2)
+    length = np.linalg.norm(n, axis=1)
+    nh = n / length[:, None]
+    proj = (np.eye(3)[None] - nh[:, :, None] * nh[:, None, :]) / length[:, None, None]   # (r, 3, 3)
+    d1, d2 = -_cross_matrices(e2), _cross_matrices(e1)
+    dn = np.stack([-(d1 + d2), d1, d2], axis=1)   # (r, 3 nodes, 3, 3)
+    blocks = mk.bary[:, :, None, None] * np.eye(3) + mk.offset[:, None, None, None] * np.einsum("rab,rkbc->rkac",
+                                                                                                   proj, dn)
+    r = len(tri)
+    rows = (3 * np.arange(r))[:, None, None, None] + np.arange(3)[None, None, :, None]   # (r, 1, 3, 1)
+    cols = (3 * tri)[:, :, None, None] + np.arange(3)[None, None, None, :]               # (r, 3, 1, 3)
+    rows, cols = np.broadcast_arrays(rows, cols)
+    return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * r, 3 * model.n_nodes))
+
+
+@dataclass(frozen=True)
+class ControlSpace:
+    """Which controls are unknowns, in order: activations of ``muscles`` (indices; default all),
+    the jaw model's parameters (``jaw=True``, needs ``jaw_model.n_params``), and 6 head parameters
+    (``head=True``: rotation vector rad about ``head_centre`` and translation mm, applied on the left
+    of the current head pose)."""
+
+    n_muscles: int
+    muscles: tuple = None
+    n_jaw: int = 0
+    head: bool = False
+    head_centre: tuple = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        m = tuple(range(self.n_muscles)) if self.muscles is None else tuple(int(i) for i in self.muscles)
+        if any(i < 0 or i >= self.n_muscles for i in m) or len(set(m)) != len(m):
+            raise FacesimError(f"control space: muscle indices must be distinct and in [0, {self.n_muscles})")
+        object.__setattr__(self, "muscles", m)
+
+    @staticmethod
+    def of(sim, jaw: bool = True, head: bool = False, muscles=None) -> "ControlSpace":
+        n_jaw = int(getattr(sim.jaw_model, "n_params", 0)) if jaw else 0
+        if jaw and n_jaw == 0:
+            raise FacesimError(f"control space: the {getattr(sim.jaw_model, 'name', 'given')} jaw model has no "
+                               "parameters to solve for (use the sliding-condyle jaw or a fitted rig)")
+        centre = tuple(sim.model.X[sim.model.cranium_nodes].mean(axis=0)) if len(sim.model.cranium_nodes) else \
+            (0.0, 0.0, 0.0)
+        return ControlSpace(sim.model.n_muscles, muscles, n_jaw, head, centre)
+
+    @property
+    def size(self) -> int:
+        return len(self.muscles) + self.n_jaw + (6 if self.head else 0)
+
+    def names(self, model: FaceModel) -> list[str]:
+        out = [model.muscles.names[i] for i in self.muscles]
+        out += [f"jaw_{k}" for k in range(self.n_jaw)]
+        return out + (list(HEAD_NAMES) if self.head else [])
+
+    def slices(self) -> tuple[slice, slice, slice]:
+        m, j = len(self.muscles), self.n_jaw
+        return slice(0, m), slice(m, m + j), slice(m + j, self.size)
+
+    def vector(self, controls: Controls) -> np.ndarray:
+        """The unknowns of ``controls`` (head parameters are increments: 0)."""
+        jaw = np.zeros(self.n_jaw) if controls.jaw is None else np.asarray(controls.jaw, dtype=np.float64).ravel()
+        if self.n_jaw and jaw.shape != (self.n_jaw,):
+            raise FacesimError(f"controls.jaw: expected {self.n_jaw} jaw parameters, got shape {jaw.shape}")
+        return np.r_[controls.a[list(self.muscles)], jaw[:self.n_jaw], np.zeros(6 if self.head else 0)]
+
+    def apply(self, controls: Controls, c) -> Controls:
+        """``controls`` with the unknowns set from ``c (size,)`` (the head increment composed on the left)."""
+        c = np.asarray(c, dtype=np.float64)
+        if c.shape != (self.size,):
+            raise FacesimError(f"control vector: expected {self.size} values, got shape {c.shape}")
+        sa, sj, sh = self.slices()
+        a = np.array(controls.a)
+        a[list(self.muscles)] = c[sa]
+        jaw = c[sj].copy() if self.n_jaw else controls.jaw
+        head = controls.head
+        if self.head:
+            head = head_increment(c[sh], self.head_centre) @ (np.eye(4) if head is None else head)
+        return Controls(a, jaw, head)
+
+
+def head_increment(h, centre) -> np.ndarray:
+    """4x4: rotation by the vector ``h[:3]`` (rad) about ``centre`` then translation ``h[3:]`` (mm)."""
+    from facesim.controls import rotation_about
+
+    T = rotation_about(np.asarray(h[:3], dtype=np.float64), centre)
+    T[:3, 3] += np.asarray(h[3:6], dtype=np.float64)
+    return T
+
+
+@dataclass
+class EquilibriumJacobian:
+    """Derivatives at one equilibrium: ``dx (3n, nc)`` of all node positions and ``dP (3r, nc)`` of
+    the markers with respect to the control vector of ``space`` (columns in ``space`` order)."""
+
+    space: ControlSpace
+    controls: Controls
+    x: np.ndarray
+    dx: np.ndarray
+    dP: np.ndarray
+    seconds: dict = field(default_factory=dict)
+    linear_iterations: list = field(default_factory=list)
+
+    def predict(self, dc) -> np.ndarray:
+        """First-order positions ``(n, 3)`` for the control change ``dc (nc,)``: a warm start."""
+        return self.x + (self.dx @ np.asarray(dc, dtype=np.float64)).reshape(-1, 3)
+
+
+def _bone_step(space: ControlSpace, k: int) -> float:
+    return 1e-5   # rad or mm: node motion ~1e-3 mm, far above round-off, O(h^2) error negligible
+
+
+def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None = None, extra_terms=(),
+                         linear_solver: str | None = None, terms_for=None, rtol: float = 1e-10) -> EquilibriumJacobian:
+    """Implicit Jacobian of the equilibrium ``x (n, 3)`` of ``sim`` (a
+    :class:`~facesim.fem.equilibrium.FaceSimulator`) at ``controls``.
+
+    ``extra_terms``: the energy terms the equilibrium was solved with besides flesh and muscles
+    (contact); ``terms_for(controls) -> extra terms`` re-poses them when the bones move (default:
+    the same terms, plus the simulator's teeth contact posed for each control). ``linear_solver``:
+    ``"direct"`` or ``"amg"`` (default: the simulator's). ``rtol``: CG tolerance per column."""
+    t0 = time.perf_counter()
+    model = sim.model
+    space = space or ControlSpace.of(sim, jaw=bool(getattr(sim.jaw_model, "n_params", 0)))
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if x.shape != model.X.shape:
+        raise FacesimError(f"x: expected positions of shape {model.X.shape}, got {x.shape}")
+
+    def extras(c: Controls):
+        base = tuple(terms_for(c)) if terms_for is not None else tuple(extra_terms)
+        teeth = sim.teeth_term(c)
+        return base + ((teeth,) if teeth is not None else ())
+
+    terms = sim.terms + extras(controls)
+    system = sim.system
+    prob = Problem(terms, system, x, controls.a)
+    K = prob.hessian(x, project=False)
+    t_assembly = time.perf_counter() - t0
+
+    sa, sj, sh = space.slices()
+    nc = space.size
+    rhs = np.zeros((system.n_dofs, nc))   # -dg_U/dc
+    if len(space.muscles):
+        G = sp.csr_matrix(sim.force_columns(x))                   # (3n, M) active force per unit activation
+        rows = (3 * system.active[:, None] + np.arange(3)).ravel()
+        rhs[:, sa] = G[rows][:, list(space.muscles)].toarray()
+        rhs[~system.free_dof, sa] = 0.0
+    dx = np.zeros((3 * model.n_nodes, nc))
+    if space.n_jaw:
+        q = np.asarray(controls.jaw, dtype=np.float64).ravel()
+        Hc = np.eye(4) if controls.head is None else controls.head
+        dT = sim.jaw_model.jacobian(q)                            # (4, 4, n_jaw)
+        Xj = model.X[model.jaw_nodes]
+        for k in range(space.n_jaw):
+            h = _bone_step(space, k)
+            g = []
+            for sgn in (1.0, -1.0):
+                qk = q.copy()
+                qk[k] += sgn * h
+                ck = Controls(controls.a, qk, controls.head)
+                xk = sim.attached_positions(ck, x)
+                g.append(Problem(sim.terms + extras(ck), system, xk, controls.a).energy_and_gradient(xk)[1])
+            rhs[:, sj.start + k] = -(g[0] - g[1]) / (2.0 * h)
+            dTk = Hc @ dT[:, :, k]
+            dx.reshape(-1, 3, nc)[model.jaw_nodes, :, sj.start + k] = Xj @ dTk[:3, :3].T + dTk[:3, 3]
+    t1 = time.perf_counter()
+    solver = make_linear_solver(linear_solver or sim.options.newton.linear_solver)
+    n_before = len(solver.stats.iterations)
+    cols = slice(0, sj.stop)
+    if sj.stop:
+        du = solver.solve_many(K, rhs[:, cols], system.rigid_modes(x), rtol=rtol)
+        du[~system.free_dof] = 0.0
+        rows = (3 * system.active[:, None] + np.arange(3)).ravel()
+        dx[rows, cols] += du
+    if space.head:
+        c = np.asarray(space.head_centre, dtype=np.float64)
+        d = x - c
+        view = dx.reshape(-1, 3, nc)
+        for j in range(3):
+            e = np.zeros(3)
+            e[j] = 1.0
+            view[:, :, sh.start + j] = np.cross(e, d)
+            view[:, j, sh.start + 3 + j] = 1.0
+    dP = marker_jacobian(model, x) @ dx
+    t2 = time.perf_counter()
+    return EquilibriumJacobian(space, controls, x, dx, dP,
+                               seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
+                                        "total": t2 - t0},
+                               linear_iterations=list(solver.stats.iterations[n_before:]))
+
+
+__all__ = ["ControlSpace", "EquilibriumJacobian", "equilibrium_jacobian", "marker_jacobian", "head_increment"]

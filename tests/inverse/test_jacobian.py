@@ -1,0 +1,100 @@
+"""Implicit Jacobians against central differences of full equilibria (issue 5)."""
+
+import numpy as np
+import pytest
+
+from facesim.controls import Controls
+from facesim.errors import FacesimError
+from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+from facesim.fem.newton import NewtonOptions
+from facesim.inverse import ControlSpace, equilibrium_jacobian, marker_jacobian
+from facesim.kinematics.condyle import SlidingCondyleJaw
+
+TIGHT = NewtonOptions(linear_solver="direct", rtol=1e-11, atol=1e-13)
+
+
+@pytest.fixture(scope="module")
+def face_model():
+    from pathlib import Path
+
+    from facesim.model import load_model
+
+    return load_model(Path(__file__).resolve().parents[2] / "meshes" / "face_coarse.npz")
+
+
+def central_marker_differences(sim, space, controls, x, h=1e-4):
+    c0 = space.vector(controls)
+    cols = []
+    for k in range(space.size):
+        P = []
+        for s in (1.0, -1.0):
+            c = c0.copy()
+            c[k] += s * h
+            eq = sim.equilibrium(space.apply(controls, c), x0=x)
+            assert eq.converged
+            P.append(sim.model.marker_positions(eq.x).ravel())
+        cols.append((P[0] - P[1]) / (2 * h))
+    return np.column_stack(cols)
+
+
+def test_marker_jacobian_matches_central_differences(box_model):
+    rng = np.random.default_rng(0)
+    x = box_model.X + 0.5 * rng.normal(size=box_model.X.shape)
+    M = marker_jacobian(box_model, x)
+    assert M.shape == (3 * box_model.n_markers, 3 * box_model.n_nodes)
+    for _ in range(3):
+        v = rng.normal(size=x.shape)
+        fd = (box_model.marker_positions(x + 1e-6 * v) - box_model.marker_positions(x - 1e-6 * v)).ravel() / 2e-6
+        np.testing.assert_allclose(M @ v.ravel(), fd, rtol=1e-7, atol=1e-9 * np.abs(fd).max())
+
+
+def test_box_jacobian_for_activations_jaw_and_head(box_model):
+    sim = FaceSimulator(box_model, EquilibriumOptions(newton=TIGHT), jaw_model=SlidingCondyleJaw(box_model.jaw))
+    controls = Controls([0.4, 0.3], jaw=[0.1, 2.0, 1.0])
+    eq = sim.equilibrium(controls)
+    assert eq.converged
+    space = ControlSpace.of(sim, head=True)
+    assert space.size == 2 + 3 + 6
+    assert space.names(box_model)[:3] == ["zygomaticus_major_L", "orbicularis_oris", "jaw_0"]
+    J = equilibrium_jacobian(sim, controls, eq.x, space)
+    fd = central_marker_differences(sim, space, controls, eq.x)
+    err = np.linalg.norm(J.dP - fd, axis=0) / np.linalg.norm(fd, axis=0)
+    assert err.max() < 1e-4, err
+    # the activation columns are not trivially small: the markers move
+    assert np.linalg.norm(J.dP[:, :2], axis=0).min() > 1.0
+    # first-order prediction of a small change lands close to the solved equilibrium
+    dc = np.r_[0.02, -0.02, 0.005, 0.15, 0.1, np.zeros(6)]
+    moved = sim.equilibrium(space.apply(controls, space.vector(controls) + dc), x0=eq.x)
+    assert np.abs(J.predict(dc) - moved.x).max() < 0.1 * np.abs(moved.x - eq.x).max()
+
+
+def test_face_marker_jacobian_against_full_equilibria(face_model):
+    """The issue's check on the shipped face: a few activations and the three sliding-condyle
+    parameters, relative error < 1e-4 per column."""
+    model = face_model
+    jaw = SlidingCondyleJaw(model.jaw)
+    sim = FaceSimulator(model, EquilibriumOptions(newton=NewtonOptions(rtol=1e-10, atol=1e-12,
+                                                                       linear_solver="direct")), jaw_model=jaw)
+    names = model.muscles.names
+    pick = [names.index(n) for n in ("zygomaticus_major_L", "orbicularis_oris_upper_L", "depressor_anguli_oris_R")]
+    a = np.zeros(model.n_muscles)
+    a[pick] = [0.4, 0.3, 0.2]
+    controls = Controls(a, jaw=[0.1, 1.0, 1.0])
+    eq = sim.equilibrium(controls)
+    assert eq.converged
+    space = ControlSpace(model.n_muscles, tuple(pick), 3)
+    J = equilibrium_jacobian(sim, controls, eq.x, space)
+    fd = central_marker_differences(sim, space, controls, eq.x, h=1e-4)
+    err = np.linalg.norm(J.dP - fd, axis=0) / np.linalg.norm(fd, axis=0)
+    assert err.max() < 1e-4, err
+
+
+def test_control_space_errors(box_model):
+    with pytest.raises(FacesimError, match="distinct and in"):
+        ControlSpace(2, (0, 0))
+    sim = FaceSimulator(box_model)
+    with pytest.raises(FacesimError, match="no parameters to solve for"):
+        ControlSpace.of(sim, jaw=True)
+    space = ControlSpace.of(sim, jaw=False)
+    with pytest.raises(FacesimError, match="expected 2 values"):
+        space.apply(Controls([0.0, 0.0]), [1.0])
