@@ -36,3 +36,18 @@ def test_00_uniaxial_block():
     assert len(rows) == 10
     for vol, stretch, fe, exact in rows:
         assert abs(fe - exact) <= 1e-6 * abs(exact), (vol, stretch)
+
+
+def test_02_jaw_and_contact(tmp_path):
+    """A short run of the jaw-and-contact example: small opening, a shallow press (the full
+    example opens to the maximum and presses 10 mm)."""
+    ex = _load("02_jaw_and_contact")
+    rows = ex.main(["--out", str(tmp_path), "--frames", "8", "--max-opening", "0.12", "--press", "3",
+                    "--size", "96"])
+    frame, opening, slide, smile, depth, converged, iterations, penetration, inverted, seconds = map(list, zip(*rows))
+    assert len(rows) == 8 and all(converged) and max(inverted) == 0
+    assert max(opening) == 0.12 and max(smile) == 1.0 and max(depth) == 3.0
+    assert max(penetration) < 0.5 and penetration[depth.index(3.0)] > 0.0   # the ball touched the cheek
+    assert len(list((tmp_path / "png").glob("frame_*.png"))) == 8
+    assert (tmp_path / "video.mp4").is_file() or (tmp_path / "video.gif").is_file()
+    assert (tmp_path / "frames.csv").read_text().count("\n") == 9
