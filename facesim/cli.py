@@ -20,6 +20,7 @@ from pathlib import Path
 import facesim
 from facesim._files import require_suffix
 from facesim.errors import FacesimError, ModelFileError
+from facesim.jaw.cli import add_jaw_commands
 
 RESOLUTIONS = ("test", "coarse", "medium", "paper")
 #: Environment variable naming the model ``facesim demo`` uses instead of the shipped one.
@@ -460,10 +461,11 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--model", required=True, metavar="M.npz", help="model file")
     simulate.add_argument("--activations", required=True, metavar="A.csv", help="muscle activations per frame")
     simulate.add_argument("--jaw", metavar="J.csv", help="jaw pose per frame (default: jaw at rest)")
-    simulate.add_argument("--jaw-model", choices=("rigid", "sliding-condyle"), default="rigid",
-                          help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening) or "
-                               "sliding-condyle (frame,opening,left_slide,right_slide in rad, mm, mm; Sifakis 2005) "
-                               "(default: %(default)s)")
+    simulate.add_argument("--jaw-model", default="rigid", metavar="{rigid,sliding-condyle,posselt:RIG.npz,nlpca:RIG.npz}",
+                          help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening), "
+                               "sliding-condyle (frame,opening,left_slide,right_slide in rad, mm, mm; Sifakis 2005), "
+                               "or a fitted jaw rig (facesim jaw fit): posselt:RIG.npz with frame,sx,sy,sz sliders in "
+                               "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3 (default: %(default)s)")
     simulate.add_argument("--collider", action="append", default=[], metavar="SPEC",
                           help="an external rigid object the skin cannot enter (repeatable): KIND:key=value,... "
                                "e.g. 'sphere:radius=12,path=ball.csv' (centre per frame from frame,x,y,z rows, mm), "
@@ -500,6 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "(default: %(default)s)")
     simulate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     simulate.set_defaults(func=cmd_simulate)
+    add_jaw_commands(commands)
     return parser
 
 

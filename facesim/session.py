@@ -40,7 +40,9 @@ JAW_MODELS = ("rigid", "sliding-condyle")
 
 def make_jaw_model(model: FaceModel, spec="rigid"):
     """A jaw model from a name (``"rigid"``: controls.jaw is a 4x4 transform; ``"sliding-condyle"``:
-    (opening rad, right slide mm, left slide mm)) or an object with ``transform(q) -> 4x4``."""
+    (opening rad, right slide mm, left slide mm)), a fitted rig ``"posselt:RIG.npz"`` /
+    ``"nlpca:RIG.npz"`` (:class:`~facesim.kinematics.rig_jaw.RigJaw`: the rig's parameters) or an
+    object with ``transform(q) -> 4x4``."""
     if not isinstance(spec, str):
         if not callable(getattr(spec, "transform", None)):
             raise FacesimError(f"jaw model: expected a name ({', '.join(JAW_MODELS)}) or an object with "
@@ -52,7 +54,21 @@ def make_jaw_model(model: FaceModel, spec="rigid"):
         from facesim.kinematics.condyle import SlidingCondyleJaw
 
         return SlidingCondyleJaw(model.jaw)
-    raise FacesimError(f"jaw model: expected one of {', '.join(JAW_MODELS)}, got {spec!r}")
+    if ":" in spec:
+        from facesim.kinematics.rig_jaw import rig_jaw_from_spec
+
+        return rig_jaw_from_spec(model, spec)
+    raise FacesimError(f"jaw model: expected one of {', '.join(JAW_MODELS)}, posselt:RIG.npz or nlpca:RIG.npz, "
+                       f"got {spec!r}")
+
+
+def jaw_rest(jaw_model):
+    """The jaw controls of the rest pose (None for the rigid jaw: identity)."""
+    n = getattr(jaw_model, "n_params", None)
+    if n is None:
+        return None
+    rest = getattr(jaw_model, "rest", None)
+    return np.zeros(n) if rest is None else np.array(rest, dtype=np.float64)
 
 
 def activation_vector(model: FaceModel, values) -> np.ndarray:

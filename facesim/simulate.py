@@ -101,8 +101,15 @@ def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.n
     """
     from facesim.controls import RigidJaw
 
+    if isinstance(jaw_model, str) and ":" in jaw_model:
+        from facesim.session import make_jaw_model
+
+        jaw_model = make_jaw_model(model, jaw_model)
+    if not isinstance(jaw_model, str):
+        return _read_rig_csv(path, jaw_model)
     if jaw_model not in JAW_MODELS:
-        raise FacesimError(f"jaw model: expected one of {', '.join(JAW_MODELS)}, got {jaw_model!r}")
+        raise FacesimError(f"jaw model: expected one of {', '.join(JAW_MODELS)}, posselt:RIG.npz or nlpca:RIG.npz, "
+                           f"got {jaw_model!r}")
     if jaw_model == "sliding-condyle":
         return _read_condyle_csv(path, model)
     table = read_table(path, "jaw file", example="frame,rx,ry,rz,tx,ty,tz' or 'frame,opening")
@@ -120,6 +127,25 @@ def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.n
                            "(rotation vector in rad about the condyle midpoint, translation in mm) or 'frame,opening' "
                            "(rad)")
     return frame_numbers(table), T.reshape(-1, 4, 4)
+
+
+def _read_rig_csv(path, jaw) -> tuple[np.ndarray, np.ndarray]:
+    """``frame,<p1>,<p2>,...``: the parameters of a fitted rig (``jaw.param_names``, e.g. sx,sy,sz
+    sliders of a Posselt rig or d1,d2,d3 of an NLPCA rig) within the rig's bounds."""
+    names = tuple(getattr(jaw, "param_names", tuple(f"q{k}" for k in range(jaw.n_params))))
+    table = read_table(path, "jaw file", example="frame," + ",".join(names))
+    if set(table.header[1:]) != set(names):
+        raise FacesimError(f"{table.path}: line {table.header_line}: columns {','.join(table.header[1:])}; expected "
+                           f"'frame,{','.join(names)}' for the {jaw.name} jaw rig")
+    q = numbers(table, names)
+    lo, hi = np.asarray(jaw.bounds, dtype=np.float64).T
+    tol = 1e-9 + 1e-6 * (hi - lo)
+    bad = np.argwhere((q < lo - tol) | (q > hi + tol))
+    if len(bad):
+        r, c = bad[0]
+        raise FacesimError(f"{table.path}: data row {r + 1}, column {names[c]!r}: {q[r, c]:g} outside "
+                           f"[{lo[c]:g}, {hi[c]:g}]")
+    return frame_numbers(table), np.ascontiguousarray(q)
 
 
 def _read_condyle_csv(path, model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
@@ -353,7 +379,9 @@ def _validate(model: FaceModel, activations, frames, jaw, jaw_model):
     shape, what = ((4, 4), "4x4 transforms") if n_params is None else \
         ((n_params,), f"rows of {n_params} {jaw_model.name} jaw parameters")
     if jaw is None:
-        rest = np.eye(4) if n_params is None else np.zeros(n_params)
+        from facesim.session import jaw_rest
+
+        rest = np.eye(4) if n_params is None else jaw_rest(jaw_model)
         J = np.broadcast_to(rest, (len(A), *shape))
     else:
         J = np.asarray(jaw, dtype=np.float64)

@@ -83,6 +83,7 @@ class ControlSpace:
     n_jaw: int = 0
     head: bool = False
     head_centre: tuple = (0.0, 0.0, 0.0)
+    jaw_rest: tuple = None    # the jaw controls standing for ``controls.jaw = None`` (default zeros)
 
     def __post_init__(self):
         m = tuple(range(self.n_muscles)) if self.muscles is None else tuple(int(i) for i in self.muscles)
@@ -98,7 +99,11 @@ class ControlSpace:
                                "parameters to solve for (use the sliding-condyle jaw or a fitted rig)")
         centre = tuple(sim.model.X[sim.model.cranium_nodes].mean(axis=0)) if len(sim.model.cranium_nodes) else \
             (0.0, 0.0, 0.0)
-        return ControlSpace(sim.model.n_muscles, muscles, n_jaw, head, centre)
+        from facesim.session import jaw_rest
+
+        rest = jaw_rest(sim.jaw_model) if n_jaw else None
+        return ControlSpace(sim.model.n_muscles, muscles, n_jaw, head, centre,
+                            None if rest is None else tuple(float(v) for v in rest))
 
     @property
     def size(self) -> int:
@@ -115,7 +120,8 @@ class ControlSpace:
 
     def vector(self, controls: Controls) -> np.ndarray:
         """The unknowns of ``controls`` (head parameters are increments: 0)."""
-        jaw = np.zeros(self.n_jaw) if controls.jaw is None else np.asarray(controls.jaw, dtype=np.float64).ravel()
+        rest = np.zeros(self.n_jaw) if self.jaw_rest is None else np.array(self.jaw_rest)
+        jaw = rest if controls.jaw is None else np.asarray(controls.jaw, dtype=np.float64).ravel()
         if self.n_jaw and jaw.shape != (self.n_jaw,):
             raise FacesimError(f"controls.jaw: expected {self.n_jaw} jaw parameters, got shape {jaw.shape}")
         return np.r_[controls.a[list(self.muscles)], jaw[:self.n_jaw], np.zeros(6 if self.head else 0)]

@@ -5,28 +5,50 @@
 - ``motion`` -- synthetic TMJ motion: subjects and capture-like sessions.
 - ``classic`` -- the traditional 1/3/5/6-DOF rigs with an optimised pivot (Zoss eqs. 1, 6-8).
 - ``posselt`` -- the Posselt-envelope rig: shield, unit-cube sliders, RBF map (Zoss eqs. 3, 9, 15).
+- ``retarget`` -- a Posselt rig bent onto a new subject from a few extremal poses (Zoss section 5).
+- ``nlpca`` -- se(3) chart, linear PCA, hierarchical nonlinear PCA and the 3-parameter rig (Yang et al. 2018).
 - ``evaluate`` -- mandible points, front-weighted errors, train/test comparison of rigs.
 - ``rigfile`` -- fitted rigs on disk (versioned .npz).
+
+Names are imported on first use (PEP 562), so ``facesim --help``, which registers the ``jaw``
+commands of :mod:`facesim.jaw.cli`, does not pay for scipy and the rigs.
 """
 
-from facesim.jaw import se3
-from facesim.jaw.classic import DOF, ClassicRig, fit_classic
-from facesim.jaw.evaluate import (
-    compare_rigs,
-    front_weights,
-    mandible_points,
-    pose_errors,
-)
-from facesim.jaw.frame import JawFrame
-from facesim.jaw.motion import JawMotion, Session, Subject
-from facesim.jaw.posselt import PosseltRig, Shield, fit_posselt
-from facesim.jaw.rigfile import rig_kind
+import importlib
+
+_EXPORTS = {
+    "DOF": "classic", "ClassicRig": "classic", "fit_classic": "classic",
+    "compare_rigs": "evaluate", "front_weights": "evaluate", "mandible_points": "evaluate",
+    "pose_errors": "evaluate",
+    "JawFrame": "frame",
+    "JawMotion": "motion", "Session": "motion", "Subject": "motion",
+    "NlpcaRig": "nlpca", "Se3Chart": "nlpca", "fit_nlpca": "nlpca", "fit_pca": "nlpca",
+    "PosseltRig": "posselt", "Shield": "posselt", "fit_posselt": "posselt",
+    "retarget_posselt": "retarget",
+}
+
+
+def __getattr__(name):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f"facesim.jaw.{_EXPORTS[name]}"), name)
+        globals()[name] = value
+        return value
+    if name == "se3":
+        return importlib.import_module("facesim.jaw.se3")
+    raise AttributeError(f"module 'facesim.jaw' has no attribute {name!r}")
 
 
 def load_rig(path):
-    """A fitted rig (:class:`PosseltRig` or :class:`ClassicRig`) from its ``.npz``, by its kind."""
+    """A fitted rig (:class:`PosseltRig`, :class:`NlpcaRig` or :class:`ClassicRig`) from its ``.npz``,
+    by its kind."""
+    from facesim.jaw.classic import ClassicRig
+    from facesim.jaw.nlpca import NlpcaRig
+    from facesim.jaw.posselt import PosseltRig
+    from facesim.jaw.rigfile import rig_kind
+
     kind = rig_kind(path)
-    return {"posselt": PosseltRig.load, "classic": ClassicRig.load}.get(kind, PosseltRig.load)(path)
+    return {"posselt": PosseltRig.load, "nlpca": NlpcaRig.load, "classic": ClassicRig.load}.get(
+        kind, PosseltRig.load)(path)
 
 
 __all__ = [
@@ -34,16 +56,21 @@ __all__ = [
     "ClassicRig",
     "JawFrame",
     "JawMotion",
+    "NlpcaRig",
     "PosseltRig",
+    "Se3Chart",
     "Session",
     "Shield",
     "Subject",
     "compare_rigs",
     "fit_classic",
+    "fit_nlpca",
+    "fit_pca",
     "fit_posselt",
     "front_weights",
     "load_rig",
     "mandible_points",
     "pose_errors",
+    "retarget_posselt",
     "se3",
 ]

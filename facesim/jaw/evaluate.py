@@ -12,6 +12,7 @@ subject: mean, 95th percentile and maximum of the per-frame error.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import time
 from dataclasses import dataclass
@@ -41,11 +42,21 @@ def farthest_points(X, count: int) -> np.ndarray:
 
 def mandible_points(model=None, count: int = 400) -> np.ndarray:
     """``(count, 3)`` mm: an even sample of the mandible surface (the bone attached to the jaw)
-    of ``model`` (default the shipped model), skull frame at rest."""
+    of ``model`` (default the shipped model, whose samples are computed once per count), skull
+    frame at rest."""
     if model is None:
-        from facesim.jaw._shipped import shipped_model
+        return _shipped_mandible(int(count)).copy()
+    return _mandible_sample(model, count)
 
-        model = shipped_model()
+
+@functools.lru_cache(maxsize=4)
+def _shipped_mandible(count: int) -> np.ndarray:
+    from facesim.jaw._shipped import shipped_model
+
+    return _mandible_sample(shipped_model(), count)
+
+
+def _mandible_sample(model, count: int) -> np.ndarray:
     surfaces = [s for s in model.bones if s.bone == "jaw"]
     if not surfaces:
         raise FacesimError("model.bones: no surface attached to the jaw (expected the mandible)")
@@ -121,20 +132,23 @@ class RigReport:
     rig: object
 
 
-RIGS = ("1dof", "3dof", "5dof", "6dof", "posselt")
+RIGS = ("1dof", "3dof", "5dof", "6dof", "posselt", "nlpca")
 
 
 def compare_rigs(train, test, points, weights=None, rigs=RIGS, frame: JawFrame | None = None,
-                 posselt_options: dict | None = None) -> dict[str, RigReport]:
+                 posselt_options: dict | None = None, nlpca_options: dict | None = None) -> dict[str, RigReport]:
     """Fit each rig of ``rigs`` on the session ``train`` and measure it on ``test``.
 
     train, test : :class:`facesim.jaw.motion.Session` of the same subject.
     points : (P, 3) mm mandible at rest (skull frame); weights : (P,) (default uniform).
     frame : the jaw frame for the rigs (default ``JawFrame.from_poses`` of the training poses).
     The classic rigs are measured with their per-frame best parameters (their pivot is what
-    they learn); the Posselt rig is driven by the captured reference point alone.
+    they learn); the Posselt rig is driven by the captured reference point alone; the NLPCA rig
+    by its inverse kinematics (best parameters on ``points``). ``posselt_options`` and
+    ``nlpca_options`` go to ``fit_posselt`` and ``fit_nlpca``.
     """
     from facesim.jaw.classic import DOF, fit_classic
+    from facesim.jaw.nlpca import fit_nlpca
     from facesim.jaw.posselt import fit_posselt
 
     if frame is None:
@@ -146,6 +160,8 @@ def compare_rigs(train, test, points, weights=None, rigs=RIGS, frame: JawFrame |
             rig = fit_classic(train.poses, name, frame, points, weights).rig
         elif name == "posselt":
             rig = fit_posselt(train, frame=frame, **(posselt_options or {}))
+        elif name == "nlpca":
+            rig = fit_nlpca(train.poses, frame, points=points, weights=weights, **(nlpca_options or {}))
         else:
             raise FacesimError(f"compare_rigs: unknown rig {name!r} (expected one of {', '.join(RIGS)})")
         seconds = time.perf_counter() - start

@@ -31,19 +31,27 @@ def save_rig(path, kind: str, arrays: dict[str, np.ndarray], meta: dict) -> Path
     return atomic_write(path, lambda tmp: np.savez_compressed(tmp, **payload))
 
 
-def load_rig(path, kind: str, array_keys, meta_keys) -> tuple[dict[str, np.ndarray], dict]:
-    """Read a ``kind`` rig written by :func:`save_rig`: (arrays, meta). Raises
-    :class:`~facesim.errors.ModelFileError` naming the file and field when anything is off."""
+def open_npz(path, what: str) -> np.lib.npyio.NpzFile:
+    """``np.load`` of the ``.npz`` at ``path`` (no pickles), or a one-line
+    :class:`~facesim.errors.ModelFileError` saying the file is missing or unreadable and that
+    ``what`` (e.g. "a posselt jaw rig .npz") was expected."""
     path = Path(path)
     if not path.is_file():
-        raise ModelFileError(path, f"no such file (expected a {kind} jaw rig .npz)")
+        raise ModelFileError(path, f"no such file (expected {what})")
     try:
         data = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
         raise ModelFileError(path, f"not a readable .npz file ({type(exc).__name__})") from None
     if not isinstance(data, np.lib.npyio.NpzFile):
-        raise ModelFileError(path, f"not an .npz archive: expected a {kind} jaw rig .npz")
-    with data:
+        raise ModelFileError(path, f"not an .npz archive: expected {what}")
+    return data
+
+
+def load_rig(path, kind: str, array_keys, meta_keys) -> tuple[dict[str, np.ndarray], dict]:
+    """Read a ``kind`` rig written by :func:`save_rig`: (arrays, meta). Raises
+    :class:`~facesim.errors.ModelFileError` naming the file and field when anything is off."""
+    path = Path(path)
+    with open_npz(path, f"a {kind} jaw rig .npz") as data:
         if "meta" not in data.files:
             raise ModelFileError(path, "field 'meta' missing: not a facesim jaw rig")
         try:
@@ -83,4 +91,4 @@ def rig_kind(path) -> str:
         raise ModelFileError(path, "not a facesim jaw rig (no readable 'meta.kind')") from None
 
 
-__all__ = ["RIG_FORMAT", "RIG_VERSION", "load_rig", "rig_kind", "save_rig"]
+__all__ = ["RIG_FORMAT", "RIG_VERSION", "load_rig", "open_npz", "rig_kind", "save_rig"]
