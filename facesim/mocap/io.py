@@ -201,3 +201,100 @@ def read_trc(path) -> MarkerData:
         raise FacesimError(f"{path}: column 'Frame#': expected integer frame numbers")
     P = numbers(table, columns[2:], allow_missing=True).reshape(len(rows), n_markers, 3) * UNITS_MM[units]
     return MarkerData(names, frames.astype(np.int64) - 1, P, rate)
+
+
+# ------------------------------------------------------------------ C3D (through ezc3d)
+def write_c3d(path, frames, names, P, fps: float, units: str = "mm") -> Path:
+    """Write a C3D file (ezc3d): POINT labels ``names``, positions ``P (F, N, 3)`` mm written in
+    ``units``, NaN = missing (residual -1), rate ``fps``, first frame ``frames[0]``."""
+    import ezc3d
+
+    frames, names, P = _check(frames, names, P)
+    if units not in UNITS_MM:
+        raise FacesimError(f"units: expected one of {', '.join(UNITS_MM)}, got {units!r}")
+    if len(frames) and np.any(np.diff(frames) != 1):
+        raise FacesimError("C3D: expected consecutive frame numbers")
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [float(fps)]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(names)
+    c["parameters"]["POINT"]["UNITS"]["value"] = [units]
+    pts = np.ones((4, len(names), len(P)))
+    pts[:3] = np.transpose(P, (2, 1, 0)) / UNITS_MM[units]
+    c["data"]["points"] = pts
+    if len(frames):
+        c["header"]["points"]["first_frame"] = int(frames[0])
+    return atomic_write(path, lambda tmp: c.write(str(tmp)))
+
+
+def read_c3d(path) -> MarkerData:
+    """Read the POINT data of a C3D file (ezc3d): labels, positions converted to mm from
+    ``POINT:UNITS`` (mm when absent), frames from the header's first frame, ``POINT:RATE``.
+    Points with a negative residual or all-zero coordinates are missing (NaN)."""
+    import ezc3d
+
+    path = Path(path)
+    if not path.is_file():
+        raise FacesimError(f"{path}: no such C3D file" if not path.exists() else f"{path}: expected a C3D file")
+    try:
+        c = ezc3d.c3d(str(path), extract_forceplat_data=False)
+    except Exception as exc:   # ezc3d raises plain RuntimeErrors for malformed files
+        raise FacesimError(f"{path}: not a readable C3D file ({' '.join(str(exc).split())})") from None
+    point = c["parameters"]["POINT"]
+    names = tuple(str(n).strip() for n in point["LABELS"]["value"])
+    units = str((point.get("UNITS", {}).get("value") or ["mm"])[0]).strip().lower() or "mm"
+    if units not in UNITS_MM:
+        raise FacesimError(f"{path}: parameter POINT:UNITS {units!r}, expected one of {', '.join(UNITS_MM)}")
+    pts = np.asarray(c["data"]["points"], dtype=np.float64)       # (4, N, F)
+    P = np.transpose(pts[:3], (2, 1, 0)) * UNITS_MM[units]
+    missing = np.all(P == 0.0, axis=2)
+    residuals = c["data"]["meta_points"]["residuals"] if "meta_points" in c["data"] else None
+    if residuals is not None and np.size(residuals):
+        missing |= np.transpose(np.asarray(residuals)[0]) < 0
+    P[missing] = np.nan
+    first = int(c["header"]["points"]["first_frame"])
+    rate = float(np.ravel(point["RATE"]["value"])[0]) if np.size(point["RATE"]["value"]) else None
+    return MarkerData(names, first + np.arange(P.shape[0], dtype=np.int64), P, rate)
+
+
+def read_markers(path, units: str | None = None) -> MarkerData:
+    """Read a marker file by its extension: ``.c3d``, ``.trc`` or ``.csv``. ``units`` (``mm``,
+    ``cm``, ``m``) overrides what the file says; CSV files carry no unit and are taken as mm
+    unless the capture is implausibly small for a face in mm (bounding box < 1 unit, i.e. it is in
+    metres), which is converted and reported through ``MarkerData`` as mm."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".c3d":
+        data = read_c3d(path)
+    elif suffix == ".trc":
+        data = read_trc(path)
+    elif suffix == ".csv":
+        data = read_markers_csv(path)
+    else:
+        raise FacesimError(f"{path}: unknown marker file type {suffix!r}; expected .c3d, .trc or .csv")
+    if units is not None:
+        if units not in UNITS_MM:
+            raise FacesimError(f"units: expected one of {', '.join(UNITS_MM)}, got {units!r}")
+        declared = 1.0 if suffix == ".csv" else None
+        if declared is None:   # the reader already scaled by the declared unit: undo and apply the given one
+            raw_units = _declared_units(path, suffix)
+            scale = UNITS_MM[units] / UNITS_MM[raw_units]
+        else:
+            scale = UNITS_MM[units]
+        return MarkerData(data.names, data.frames, data.P * scale, data.rate)
+    if suffix == ".csv":
+        extent = np.nanmax(data.P, axis=(0, 1)) - np.nanmin(data.P, axis=(0, 1)) if np.isfinite(data.P).any() else 0
+        if np.all(np.isfinite(extent)) and 0 < float(np.max(extent)) < 1.0:
+            return MarkerData(data.names, data.frames, data.P * 1000.0, data.rate)
+    return data
+
+
+def _declared_units(path: Path, suffix: str) -> str:
+    if suffix == ".c3d":
+        import ezc3d
+
+        c = ezc3d.c3d(str(path), extract_forceplat_data=False)
+        return str((c["parameters"]["POINT"].get("UNITS", {}).get("value") or ["mm"])[0]).strip().lower() or "mm"
+    raw = path.read_text(encoding="utf-8-sig").splitlines()
+    keys = [k.strip() for k in raw[1].strip().split("\t") if k.strip()]
+    values = [v.strip() for v in raw[2].strip().split("\t") if v.strip()]
+    return dict(zip(keys, values))["Units"].lower()

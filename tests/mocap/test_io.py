@@ -126,3 +126,32 @@ def test_writers_validate(tmp_path):
     with pytest.raises(FacesimError, match="frame rate"):
         write_trc(tmp_path / "a.trc", [0, 1], ["a"], P, fps=0)
     assert not list(tmp_path.iterdir())
+
+
+def test_c3d_round_trip_with_gaps_units_and_first_frame(tmp_path):
+    from facesim.mocap.io import read_c3d, read_markers, write_c3d
+
+    rng = np.random.default_rng(4)
+    P = rng.normal(scale=50.0, size=(5, 3, 3))
+    P[2, 1] = np.nan
+    path = write_c3d(tmp_path / "m.c3d", np.arange(10, 15), ["chin", "nose", "lip"], P, fps=120.0, units="m")
+    d = read_c3d(path)
+    assert d.names == ("chin", "nose", "lip") and list(d.frames) == list(range(10, 15)) and d.rate == 120.0
+    np.testing.assert_allclose(d.P, P, atol=1e-4)      # written in metres (float32 in the file), read as mm
+    assert np.isnan(d.P[2, 1]).all() and np.isfinite(d.P[2, 0]).all()
+    # an explicit unit overrides the file's
+    np.testing.assert_allclose(read_markers(path, units="mm").P, P / 1000.0, atol=1e-6)
+    with pytest.raises(FacesimError, match="not a readable C3D"):
+        (tmp_path / "bad.c3d").write_bytes(b"\x00" * 10)
+        read_c3d(tmp_path / "bad.c3d")
+
+
+def test_read_markers_dispatches_and_detects_metres_in_csv(tmp_path):
+    from facesim.mocap.io import read_markers, write_markers_csv
+
+    P = np.array([[[0.01, 0.02, 0.10], [0.05, -0.03, 0.09]]])   # a face in metres
+    write_markers_csv(tmp_path / "m.csv", [0], ["a", "b"], P)
+    np.testing.assert_allclose(read_markers(tmp_path / "m.csv").P, P * 1000.0)
+    np.testing.assert_allclose(read_markers(tmp_path / "m.csv", units="mm").P, P)
+    with pytest.raises(FacesimError, match="unknown marker file type '.txt'"):
+        read_markers(tmp_path / "m.txt")
