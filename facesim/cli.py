@@ -309,6 +309,48 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_solve_mocap(args) -> int:
+    import numpy as np
+
+    from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+    from facesim.fem.newton import NewtonOptions
+    from facesim.inverse.gauss_newton import FitOptions
+    from facesim.inverse.plots import plot_track
+    from facesim.inverse.tracking import TrackOptions, match_markers, track
+    from facesim.mocap.io import read_markers
+    from facesim.session import make_jaw_model
+
+    model = _load(args.model)
+    data = read_markers(args.markers, units=args.units)
+    index, extra, missing = match_markers(model.markers.names, data.names)
+    if (index >= 0).sum() < 3:
+        raise FacesimError(f"{args.markers}: only {int((index >= 0).sum())} of the model's {model.n_markers} marker "
+                           f"names found (file has {', '.join(data.names[:5])}...); expected the model's names "
+                           "('facesim model info' lists them)")
+    if extra or missing:
+        print(f"markers: {int((index >= 0).sum())} matched; not in the model: {', '.join(extra) or '-'}; "
+              f"not in the file: {', '.join(missing) or '-'}")
+    P = np.full((len(data.frames), model.n_markers, 3), np.nan)
+    P[:, index >= 0] = data.P[:, index[index >= 0]]
+    frames = data.frames
+    if args.frames:
+        lo, _, hi = args.frames.partition(":")
+        keep = (frames >= int(lo or frames.min())) & (frames <= int(hi or frames.max()))
+        frames, P = frames[keep], P[keep]
+        if not len(frames):
+            raise FacesimError(f"--frames {args.frames}: no frames of {args.markers} in that range")
+    jaw = make_jaw_model(model, args.jaw_model)
+    sim = FaceSimulator(model, EquilibriumOptions(newton=NewtonOptions(linear_solver=args.solver)), jaw_model=jaw)
+    options = TrackOptions(fit=FitOptions(noise=args.noise, max_steps=args.max_steps), head=args.head,
+                           robust=not args.no_robust)
+    s = track(sim, frames, P, args.output, options=options, resume=args.resume, progress=not args.quiet)
+    plot_track(args.output)
+    rms = s["marker_rms"]
+    print(f"solved {s['solved_frames']} frames ({s['reused_frames']} reused) in {s['seconds']:.1f} s; marker RMS "
+          f"median {np.median(rms) if rms else float('nan'):.3f} mm -> {args.output}")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from tqdm import tqdm
 
@@ -502,6 +544,36 @@ def build_parser() -> argparse.ArgumentParser:
                                "(default: %(default)s)")
     simulate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     simulate.set_defaults(func=cmd_simulate)
+
+    solve = commands.add_parser(
+        "solve-mocap", help="muscle activations and jaw pose per frame from a marker capture",
+        description="Inverse simulation (Sifakis 2005): for every frame of a motion capture, the muscle "
+                    "activations and jaw parameters whose quasistatic equilibrium puts the model's markers on the "
+                    "captured ones (Gauss-Newton with implicit Jacobians, penalty schedule on the bounds, golden-"
+                    "section search), warm-started from the previous frame. Writes frame by frame into OUT/: "
+                    "activations.csv, jaw.csv, residuals.csv (per frame and marker, mm), frames.csv (solver log), "
+                    "report.json, and at the end activations.png and residuals.png. --resume continues an "
+                    "interrupted run.",
+        epilog="Marker names are matched to the model's (exactly, then ignoring case); unmatched names are "
+               "reported. Missing markers (NaN or empty) are dropped per frame.")
+    solve.add_argument("--model", required=True, metavar="M.npz", help="model file")
+    solve.add_argument("--markers", required=True, metavar="F", help="capture: .c3d, .trc or .csv (mm unless stated)")
+    solve.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
+    solve.add_argument("--units", choices=("mm", "cm", "m"), help="override the file's length unit")
+    solve.add_argument("--jaw-model", default="sliding-condyle",
+                       metavar="{sliding-condyle,posselt:RIG.npz,nlpca:RIG.npz}",
+                       help="jaw parameterisation solved for (default: %(default)s)")
+    solve.add_argument("--head", choices=("procrustes", "none"), default="procrustes",
+                       help="stabilise the head with the head markers, or take the capture as already stabilised "
+                            "(default: %(default)s)")
+    solve.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames (inclusive)")
+    solve.add_argument("--noise", type=float, default=0.5, help="marker noise level, mm (default: %(default)s)")
+    solve.add_argument("--max-steps", type=int, default=5, help="Gauss-Newton steps per frame (default: %(default)s)")
+    solve.add_argument("--no-robust", action="store_true", help="keep outlier markers in the fit (still reported)")
+    solve.add_argument("--solver", choices=("amg", "direct"), default="amg", help="linear solver of the equilibria")
+    solve.add_argument("--resume", action="store_true", help="continue the run in OUT_DIR")
+    solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    solve.set_defaults(func=cmd_solve_mocap)
     add_jaw_commands(commands)
     return parser
 

@@ -87,3 +87,24 @@ def test_bad_shapes(sequence, tmp_path):
     sim, _, P = sequence
     with pytest.raises(FacesimError, match="expected"):
         track(sim, np.arange(3), P, tmp_path, progress=False)
+
+
+def test_solve_mocap_cli_on_a_trc(sequence, box_model, box_model_path, tmp_path, capsys):
+    from facesim.cli import main
+    from facesim.mocap.io import write_trc
+
+    _, truth, P = sequence
+    names = list(box_model.markers.names)
+    names[0] = "EXTRA"                           # a name the model does not have: reported, its column unused
+    write_trc(tmp_path / "m.trc", np.arange(3), names, P[:3], fps=30.0)
+    out = tmp_path / "out"
+    assert main(["solve-mocap", "--model", str(box_model_path), "--markers", str(tmp_path / "m.trc"), "-o", str(out),
+                 "--head", "none", "--noise", "0.01", "--solver", "direct", "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert "not in the model: EXTRA" in printed and "not in the file: mouth_L" in printed
+    A = np.loadtxt(out / "activations.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(A[:, 1:], [c.a for c in truth[:3]], atol=0.03)
+    assert (out / "activations.png").stat().st_size > 1000 and (out / "residuals.png").is_file()
+    assert main(["solve-mocap", "--model", str(box_model_path), "--markers", str(tmp_path / "nope.c3d"),
+                 "-o", str(out)]) == 2
+    assert "no such C3D file" in capsys.readouterr().err
