@@ -10,6 +10,7 @@ equilibrium solver like any other term.
 from facesim.contact.penalty import DEFAULT_STIFFNESS, ContactTerm, node_areas
 from facesim.contact.sdf import (SDF, Capsule, Collider, KinematicPath, MeshSDF, Plane, Sphere, as_collider,
                                  rigid_transform, translation)
+from facesim.contact.self_contact import SurfaceContactTerm, lip_contact_term
 
 __all__ = ["SDF", "Sphere", "Plane", "Capsule", "MeshSDF", "Collider", "KinematicPath", "as_collider",
            "rigid_transform", "translation", "ContactTerm", "node_areas", "DEFAULT_STIFFNESS"]
