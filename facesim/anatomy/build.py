@@ -13,7 +13,7 @@ from facesim.anatomy.markers import bind_markers
 from facesim.anatomy.muscles import embed_muscles
 from facesim.anatomy.quality import quality_summary
 from facesim.errors import FacesimError
-from facesim.model import FaceModel, JawGeometry, RigidSurface, Tissue
+from facesim.model import FaceModel, RigidSurface, Tissue
 
 #: resolution -> (field grid spacing mm, target edge in the simulated face mm, target edge
 #: elsewhere mm, fTetWild envelope as a fraction of the bounding-box diagonal). The envelope
@@ -21,7 +21,7 @@ from facesim.model import FaceModel, JawGeometry, RigidSurface, Tissue
 #: tets unless the surface may move by up to epsilon * ~330 mm.
 RESOLUTIONS = {
     "test": (1.0, 14.0, 20.0, 4.0e-3),
-    "coarse": (1.0, 9.0, 14.0, 3.0e-3),
+    "coarse": (1.0, 9.0, 17.0, 3.0e-3),
     "medium": (1.0, 5.5, 10.0, 2.5e-3),
     "paper": (0.8, 2.5, 7.0, 1.5e-3),
 }
@@ -180,15 +180,7 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
                  _rigid_surface("lower_teeth", "jaw", fields.teeth_lower, fields.grid, stride=1, smooth=0.0),
                  _sphere_surface("eye_L", "cranium", eye, phantom.EYE_RADIUS),
                  _sphere_surface("eye_R", "cranium", eye * np.array([-1.0, 1.0, 1.0]), phantom.EYE_RADIUS))
-    mid = len(arches.s) // 2
-    jaw = JawGeometry(
-        condyle_right=sub.scaled(phantom.CONDYLE * np.array([-1.0, 1.0, 1.0])),
-        condyle_left=sub.scaled(phantom.CONDYLE),
-        track_direction=phantom.track_direction(),
-        track_length=phantom.TRACK_LENGTH,
-        max_opening=phantom.MAX_OPENING,
-        incisor=np.array([0.0, arches.lower_tip[mid], arches.lower[mid, 1] + arches.lower_ht[mid]]),
-    )
+    jaw = phantom.jaw_geometry(sub, arches)
     say("measuring soft-tissue depths and mesh quality")
     depths = measure_depths(X, L.skin[outer], fields, sub)
     quality = quality_summary(X, T)
@@ -208,6 +200,7 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
         "quality": quality,
         "soft_tissue_depths": depths,
         "rigid_core_depth_mm": phantom.CORE_DEPTH,
+        "rigid_core_clearance_mm": dict(phantom.CORE_CLEARANCE),
         "units": "mm, N, MPa",
     }
     return FaceModel(X=X, tets=T, tissue=tissue, tissues=TISSUES, simulated=L.simulated, muscles=muscles,

@@ -18,10 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from scipy import ndimage
 
 from facesim.anatomy import sdf
+from facesim.model import JawGeometry
 
 
 @dataclass(frozen=True)
@@ -103,6 +103,61 @@ def track_direction() -> np.ndarray:
     return np.array([0.0, -np.sin(a), np.cos(a)])
 
 
+def jaw_geometry(sub: Subject, arches: DentalArches) -> JawGeometry:
+    """The subject's TMJ geometry: condyles, sliding tracks, maximum opening, lower incisal point."""
+    mid = len(arches.s) // 2
+    return JawGeometry(
+        condyle_right=sub.scaled(CONDYLE * np.array([-1.0, 1.0, 1.0])),
+        condyle_left=sub.scaled(CONDYLE),
+        track_direction=track_direction(),
+        track_length=TRACK_LENGTH,
+        max_opening=MAX_OPENING,
+        incisor=np.array([0.0, arches.lower_tip[mid], arches.lower[mid, 1] + arches.lower_ht[mid]]),
+    )
+
+
+def jaw_range_poses(geometry: JawGeometry, n_opening: int = 25, n_slide: int = 5) -> np.ndarray:
+    """``(k, 4, 4)`` mandible poses (relative to the cranium) covering the sliding-condyle jaw's
+    whole range: every opening in ``[0, max_opening]`` with every pair of condyle slides in
+    ``[0, track_length]`` on a regular grid (``n_opening`` x ``n_slide`` x ``n_slide`` poses).
+    Between neighbouring poses no mandible point moves more than ~3 mm (coarse model)."""
+    from facesim.kinematics.condyle import SlidingCondyleJaw
+
+    jaw = SlidingCondyleJaw(geometry)
+    slides = np.linspace(0.0, geometry.track_length, n_slide)
+    return np.array([jaw.transform([t, r, l]) for t in np.linspace(0.0, geometry.max_opening, n_opening)
+                     for r in slides for l in slides])
+
+
+def swept_occupancy(g: sdf.Grid, inside: np.ndarray, poses: np.ndarray, stride: int = 2) -> np.ndarray:
+    """Voxels of ``g`` a rigid body occupying ``inside`` (grid shape, bool) covers in any of the
+    ``poses (k, 4, 4)``.
+
+    Worked on blocks of ``stride``³ voxels (a block is occupied if any of its voxels is): each
+    occupied block centre is moved by every pose and rounded to the nearest block. A distance
+    measured from the result is off by up to about the block diagonal plus half the distance a
+    point moves from one pose to the next (a few mm for :func:`jaw_range_poses`), fine for
+    clearances of centimetres.
+    """
+    n = np.array(g.shape)
+    m = -(-n // stride)
+    pad = np.zeros(m * stride, bool)
+    pad[:n[0], :n[1], :n[2]] = inside
+    blocks = pad.reshape(m[0], stride, m[1], stride, m[2], stride).any(axis=(1, 3, 5))
+    hb = g.h * stride
+    origin = np.asarray(g.lo) + 0.5 * (stride - 1) * g.h       # centre of block (0, 0, 0)
+    P = origin + hb * np.argwhere(blocks)
+    out = np.zeros(blocks.size, bool)
+    for T in poses:
+        ijk = np.rint((P @ T[:3, :3].T + (T[:3, 3] - origin)) / hb).astype(np.int64)
+        ok = np.all((ijk >= 0) & (ijk < m), axis=1)
+        out[np.ravel_multi_index(tuple(ijk[ok].T), tuple(m))] = True
+    out = out.reshape(m)
+    for axis in range(3):
+        out = np.repeat(out, stride, axis=axis)
+    return out[:n[0], :n[1], :n[2]]
+
+
 # --------------------------------------------------------------- the fields
 @dataclass
 class HeadFields:
@@ -172,12 +227,14 @@ def cranium_field(g: sdf.Grid, sub: Subject, arches: DentalArches) -> np.ndarray
     d = sdf.superellipsoid(x, y, z, S([0, 50, -14]), S([70, 84, 95]), 2.5)
     base = sdf.halfspace(x, y, z, S([0, 10, 0]), [0.0, -1.0, 0.42])
     d = sdf.smooth_intersect(d, base, 6.0)
-    # skull base, pharynx and cervical column (rigid core the neck flesh hangs on)
+    # skull base and cervical column (rigid core the neck flesh hangs on); the pharynx in front
+    # of the column is soft: the tongue base moves back into it when the mouth opens
     core = sdf.box(x, y, z, S([0, -10, -20]), S([27, 30, 26]), rounding=10.0)
-    core = np.minimum(core, sdf.capsule_chain(x, y, z, S([[0, -20, -28], [0, -60, -30], [0, -88, -31]]), 26.0))
+    core = np.minimum(core, sdf.capsule_chain(x, y, z, S([[0, -20, -36], [0, -60, -39], [0, -88, -40]]), 17.0))
     d = sdf.smooth_union(d, core, 8.0)
-    # mastoids behind the condyles
-    d = sdf.smooth_union(d, mirror_pair(sdf.ellipsoid, x, y, z, S([54, -6, -22]), S([9, 14, 10])), 5.0)
+    # mastoids behind the ear canals, ~20 mm behind the ramus: the posterior border swings back
+    # toward them when the mouth opens and the parotid tissue between must not be pinched
+    d = sdf.smooth_union(d, mirror_pair(sdf.ellipsoid, x, y, z, S([53, -12, -35]), S([9, 14, 9])), 5.0)
     # brow ridges and nasal bridge
     d = sdf.smooth_union(d, mirror_chain(x, y, z, S([[6, 45, 81], [22, 47, 79], [38, 44, 72], [47, 36, 61]]), 4.0), 6.0)
     d = sdf.smooth_union(d, sdf.ellipsoid(x, y, z, S([0, 27, 64]), S([17, 17, 20])), 5.0)
@@ -197,21 +254,46 @@ def cranium_field(g: sdf.Grid, sub: Subject, arches: DentalArches) -> np.ndarray
     return d.astype(np.float32)
 
 
+#: Radius of the joint void around each condyle's sliding track (mm): the condyle (18 mm
+#: across) keeps ~3.5 mm of it all round, so no flesh element reaches from the condyle to the
+#: fossa or the root of the zygomatic arch.
+JOINT_RADIUS = 12.5
+
+
 def joint_field_raw(x, y, z, sub: Subject, margin: float = 0.0):
     c = sub.scaled(CONDYLE)
     v = track_direction()
     pts = lambda c: np.array([c, c + TRACK_LENGTH * v])  # noqa: E731
     mirror = c * np.array([-1.0, 1.0, 1.0])
-    return np.minimum(sdf.capsule_chain(x, y, z, pts(c), 11.0 + margin), sdf.capsule_chain(x, y, z, pts(mirror), 11.0 + margin))
+    r = JOINT_RADIUS + margin
+    return np.minimum(sdf.capsule_chain(x, y, z, pts(c), r), sdf.capsule_chain(x, y, z, pts(mirror), r))
+
+
+def mandibular_arch(sub: Subject) -> np.ndarray:
+    """``(11, 2)`` centreline (x, z) of the body of the mandible, right angle to left angle, mm."""
+    c = np.array([[-44, -2], [-42, 18], [-37.5, 38], [-28, 56], [-15, 68.5], [0, 72.5]], float)
+    return np.vstack([c, c[-2::-1] * [-1, 1]]) * np.array([sub.width, sub.depth * sub.jaw_length])
+
+
+def floor_of_mouth_field(g: sdf.Grid, sub: Subject, arches: DentalArches) -> np.ndarray:
+    """The space the mandibular arch encloses, from below its lower border up to the crown necks:
+    floor of the mouth, tongue base and suprahyoid muscles, all carried by the mandible when
+    the mouth opens (used to keep the rigid core out of their way, not as a part of the head)."""
+    x, y, z = g.axes()
+    zz, xx = np.broadcast_arrays(z[0, 0][None, :], x[:, 0, 0][:, None])
+    inside = _polygon_sdf_2d(xx, zz, mandibular_arch(sub))[:, None, :]
+    band = np.abs(y - 0.5 * (arches.lower_neck - 86.0 * sub.height)) - 0.5 * (arches.lower_neck + 86.0 * sub.height)
+    return np.maximum(inside, band).astype(np.float32)
 
 
 def jaw_field(g: sdf.Grid, sub: Subject, arches: DentalArches) -> np.ndarray:
     x, y, z = g.axes()
     S = sub.scaled
     J = sub.jaw_length
-    d = mirror_pair(sdf.ellipsoid, x, y, z, S(CONDYLE), [10.0, 5.0, 5.5])
-    # ramus: a plate in the (z, y) plane at |x| ~ 47.5 with condylar neck, notch and coronoid
-    poly = np.array([[-4, -4], [4, -5], [11, -12], [21, -6], [25, -10], [31, -40], [36, -52],
+    d = mirror_pair(sdf.ellipsoid, x, y, z, S(CONDYLE), [9.0, 5.0, 5.5])
+    # ramus: a plate in the (z, y) plane at |x| ~ 47.5 with condylar neck, notch and coronoid; the
+    # coronoid tip stays ~10 mm under the zygomatic arch (the temporalis tendon passes between)
+    poly = np.array([[-4, -4], [4, -5], [11, -14], [21, -10], [25, -14], [31, -40], [36, -52],
                      [8, -64], [-5, -57], [-7, -30]], float) * np.array([sub.depth, sub.height])
     zz, yy = np.broadcast_arrays(z[0], y[0])
     p2 = _polygon_sdf_2d(zz, yy, poly)[None, :, :] - 1.5
@@ -219,8 +301,7 @@ def jaw_field(g: sdf.Grid, sub: Subject, arches: DentalArches) -> np.ndarray:
     d = sdf.smooth_union(d, plate, 3.0)
     d = sdf.smooth_union(d, mirror_chain(x, y, z, S([[50, -1, 0], [49, -8, -2]]), 4.5), 3.0)
     # body along the mandibular arch, from the angle to the symphysis
-    c = np.array([[-44, -2], [-42, 18], [-37.5, 38], [-28, 56], [-15, 68.5], [0, 72.5]], float)
-    c = np.vstack([c, c[-2::-1] * [-1, 1]]) * np.array([sub.width, sub.depth * J])
+    c = mandibular_arch(sub)
     k = len(c)
     t = np.abs(np.linspace(-1, 1, k))
     ht = 5.0 + 1.8 * (1 - t)
@@ -231,6 +312,14 @@ def jaw_field(g: sdf.Grid, sub: Subject, arches: DentalArches) -> np.ndarray:
     # lower alveolar ridge under the lower crowns and the chin boss
     d = sdf.smooth_union(d, sdf.arch_sweep(x, y, z, arches.lower, arches.lower_ht + 1.5, -66.0 * sub.height,
                                            arches.lower_neck - 4.0, 2.0), 4.0)
+    # behind the last molars the ridge runs back and out into the body (the lingual retromolar
+    # ridge): no back-facing step for the floor of the mouth to catch on when the jaw swings back
+    for side in (-1.0, 1.0):
+        end = arches.lower[0 if side < 0 else -1]
+        ramp = np.array([end, [side * 35.0 * sub.width, 12.0 * sub.depth]])
+        d = sdf.smooth_union(d, sdf.arch_sweep(x, y, z, ramp, [arches.lower_ht[0] + 1.5, 3.0],
+                                               [-66.0 * sub.height, -66.0 * sub.height],
+                                               [arches.lower_neck - 4.0, arches.lower_neck - 5.5], 2.0), 4.0)
     d = sdf.smooth_union(d, sdf.ellipsoid(x, y, z, S([0, -76, 73 * J]), [16, 10, 6.5]), 5.0)
     return d.astype(np.float32)
 
@@ -360,7 +449,7 @@ def skin_field(g: sdf.Grid, sub: Subject, bone_and_eyes_exact: np.ndarray) -> np
     d = sdf.smooth_union(d, sdf.capsule_chain(x, y, z, S(upper), 3.2 * L * np.sqrt(1 - 0.6 * xs ** 2)), 4.0)
     d = sdf.smooth_union(d, sdf.capsule_chain(x, y, z, S(lower), 2.7 * L * np.sqrt(1 - 0.6 * xs ** 2)), 4.0)
     # neck stub, cut flat
-    neck = sdf.capsule_chain(x, y, z, S([[0, -40, -25], [0, -150, -38]]), 54.0)
+    neck = sdf.capsule_chain(x, y, z, S([[0, -40, -25], [0, -175, -41]]), 54.0)
     neck = np.maximum(neck, sdf.halfspace(x, y, z, S([0, 20, 0]), [0, 1, 0]))
     d = sdf.smooth_union(d, neck, 14.0)
     # the neck runs on below the cut (NECK_CUT_Y) so the cut meets it at a clean right angle
@@ -379,44 +468,60 @@ def skin_field(g: sdf.Grid, sub: Subject, bone_and_eyes_exact: np.ndarray) -> np
 
 
 def soft_masses(g: sdf.Grid, sub: Subject) -> np.ndarray:
-    """Bulk soft tissue the skin drapes over but the model does not simulate as bone: masseter, parotid."""
+    """Bulk soft tissue the skin drapes over but the model does not simulate as bone: masseter,
+    parotid, and under the floor of the mouth the suprahyoid muscles and submandibular glands,
+    which fill the arch down to about its lower border (a submental skin drawn up into the
+    arch buckles into a crease when the open jaw swings the chin back toward the throat)."""
     x, y, z = g.axes()
     S = sub.scaled
     m = mirror_chain(x, y, z, S([[54, 0, 18], [52, -30, 12], [49, -56, 2]]), [5.0, 5.0, 4.0])
-    return sdf.smooth_union(m, mirror_pair(sdf.ellipsoid, x, y, z, S([58, -20, -12]), [8, 16, 10]), 6.0)
+    m = sdf.smooth_union(m, mirror_pair(sdf.ellipsoid, x, y, z, S([58, -20, -12]), [8, 16, 10]), 6.0)
+    return np.minimum(m, sdf.ellipsoid(x, y, z, S([0, -78, 38]), S([26, 9, 24])))
 
 
 #: Flesh deeper than this under the skin is part of the rigid cranium body (mm) ...
 CORE_DEPTH = 14.0
-#: Height of the flat cut through the neck stub (canonical mm).
-NECK_CUT_Y = -128.0
-#: ... unless it is within these distances of the mandible, the mouth, the eyes or the joints (mm).
-CORE_CLEARANCE = {"jaw": 12.0, "mouth": 8.0, "eyes": 4.0, "joint": 5.0}
+#: Height of the flat cut through the neck stub (canonical mm): ~60 mm below the menton, which
+#: the open jaw brings down to ~35 mm above it.
+NECK_CUT_Y = -150.0
+#: ... unless it is within these distances of the mandible (in any pose of its range), the mouth,
+#: the eyes or the joints (mm).
+CORE_CLEARANCE = {"jaw": 20.0, "mouth": 8.0, "eyes": 4.0, "joint": 5.0}
 
 
-def deep_core(g: sdf.Grid, cranium, jaw, eyes, mouth, joint, skin, cut_y: float) -> np.ndarray:
+def deep_core(g: sdf.Grid, cranium, jaw, eyes, mouth, joint, skin, cut_y: float, jaw_poses=None) -> np.ndarray:
     """Cranium field grown into the deep interior of the head (pharynx, skull base, neck core).
 
     The simulated flesh is the layer under the skin, as in Sifakis et al. 2005: deeper tissue
-    that facial expressions barely move is treated as part of the rigid cranium body.
+    that facial expressions barely move is treated as part of the rigid cranium body. ``jaw`` is
+    the field of the mandible and what it carries (the floor of the mouth inside its arch); the
+    core keeps ``CORE_CLEARANCE["jaw"]`` from it in every pose of ``jaw_poses (k, 4, 4)``
+    (default: the rest pose only), not only at rest: opening swings the angles back by ~20 mm
+    and the body of the mandible down and back by ~30 mm, and flesh caught between the moving
+    bone and a rigid core there (floor of the mouth, medial to the ramus and the angle) has
+    nowhere to go and inverts. So that tissue is free flesh: the mandible carries it back
+    toward the cervical column, and the neck in front of the column gives way.
     """
     deep = sdf.exact_sdf(skin < 0, g.h) < -CORE_DEPTH
     # the core stops short of the neck cut, so the cut is a solid disc of flesh and the skin
     # with that disc closes the head
     deep &= np.broadcast_to(g.axes()[1] > cut_y + CORE_DEPTH, g.shape)
-    for name, field in (("jaw", jaw), ("mouth", mouth), ("eyes", eyes), ("joint", joint)):
-        deep &= sdf.exact_sdf(field < 0, g.h) > CORE_CLEARANCE[name]
+    poses = np.eye(4)[None] if jaw_poses is None else np.asarray(jaw_poses, float)
+    swept = swept_occupancy(g, jaw < 0, poses)
+    for name, inside in (("jaw", swept), ("mouth", mouth < 0), ("eyes", eyes < 0), ("joint", joint < 0)):
+        deep &= sdf.exact_sdf(inside, g.h) > CORE_CLEARANCE[name]
     occ = (cranium < 0) | deep
     grown = ndimage.gaussian_filter(sdf.exact_sdf(occ, g.h), 0.8 / g.h)
     # keep the analytic field where no core was added (sharper features)
     return np.where(deep | (grown < cranium), np.minimum(grown, cranium), cranium).astype(np.float32)
 
 
-#: The simulated face region in canonical mm: in front of the mastoids (so the soft tissue
-#: around the ramus can follow the mandible), the whole neck stub (the chin drops by 30 mm at
-#: full opening) and below the upper forehead. The rest of the head (scalp, back of the head)
+#: The simulated face region in canonical mm: behind the mandibular angles by more than they
+#: swing back at full opening (~25 mm), so the soft tissue around the ramus can follow the
+#: mandible; the whole neck stub (at full opening the chin drops ~35 mm and swings ~50 mm back,
+#: toward the throat); below the upper forehead. The rest of the head (scalp, back of the head)
 #: is meshed but not simulated: its nodes move with the cranium.
-FACE_REGION = {"z_min": -45.0, "y_min": -200.0, "y_max": 100.0}
+FACE_REGION = {"z_min": -55.0, "y_min": -200.0, "y_max": 100.0}
 
 
 def neck_cut(g: sdf.Grid, sub: Subject) -> np.ndarray:
@@ -427,7 +532,7 @@ def neck_cut(g: sdf.Grid, sub: Subject) -> np.ndarray:
 
 def build_fields(sub: Subject, h: float = 1.0, progress=None) -> HeadFields:
     """Evaluate every part on a grid of spacing ``h`` mm covering the head."""
-    lo = sub.scaled([-92, -135, -125])
+    lo = sub.scaled([-92, -160, -125])
     hi = sub.scaled([92, 145, 135])
     g = sdf.Grid.around(lo, hi, h)
     step = (lambda msg: progress(msg)) if progress else (lambda msg: None)
@@ -453,7 +558,9 @@ def build_fields(sub: Subject, h: float = 1.0, progress=None) -> HeadFields:
     skin = skin_field(g, sub, bone_eyes_exact)
     step("rigid core")
     skull = cranium
-    cranium = deep_core(g, cranium, jaw, eyes, mouth, joint, skin, NECK_CUT_Y * sub.height)
+    carried = np.minimum(jaw, floor_of_mouth_field(g, sub, arches))
+    cranium = deep_core(g, cranium, carried, eyes, mouth, joint, skin, NECK_CUT_Y * sub.height,
+                        jaw_poses=jaw_range_poses(jaw_geometry(sub, arches)))
     crop = neck_cut(g, sub)
     return HeadFields(grid=g, cranium=cranium, cranium_skull=skull, crop=crop, jaw=jaw, eyes=eyes, teeth_upper=t_up, teeth_lower=t_lo,
                       mouth=mouth, joint=joint, skin=skin)
