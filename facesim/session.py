@@ -35,14 +35,16 @@ from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
 from facesim.fem.newton import NewtonOptions, SolveReport
 from facesim.model import FaceModel
 
-JAW_MODELS = ("rigid", "sliding-condyle")
+JAW_MODELS = ("rigid", "sliding-condyle", "posselt")
 
 
-def make_jaw_model(model: FaceModel, spec="rigid"):
+def make_jaw_model(model: FaceModel, spec="rigid", model_path=None):
     """A jaw model from a name (``"rigid"``: controls.jaw is a 4x4 transform; ``"sliding-condyle"``:
-    (opening rad, right slide mm, left slide mm)), a fitted rig ``"posselt:RIG.npz"`` /
-    ``"nlpca:RIG.npz"`` (:class:`~facesim.kinematics.rig_jaw.RigJaw`: the rig's parameters) or an
-    object with ``transform(q) -> 4x4``."""
+    (opening rad, right slide mm, left slide mm); ``"posselt"``: the model's own Posselt rig, fitted
+    to motion generated for its TMJ -- ``<model>_posselt.npz`` next to ``model_path`` when given,
+    else the shipped rig recording the same TMJ, see :func:`~facesim.kinematics.rig_jaw.model_rig_jaw`),
+    a fitted rig ``"posselt:RIG.npz"`` / ``"nlpca:RIG.npz"`` (:class:`~facesim.kinematics.rig_jaw.RigJaw`:
+    the rig's parameters) or an object with ``transform(q) -> 4x4``."""
     if not isinstance(spec, str):
         if not callable(getattr(spec, "transform", None)):
             raise FacesimError(f"jaw model: expected a name ({', '.join(JAW_MODELS)}) or an object with "
@@ -54,6 +56,10 @@ def make_jaw_model(model: FaceModel, spec="rigid"):
         from facesim.kinematics.condyle import SlidingCondyleJaw
 
         return SlidingCondyleJaw(model.jaw)
+    if spec == "posselt":
+        from facesim.kinematics.rig_jaw import model_rig_jaw
+
+        return model_rig_jaw(model, model_path)
     if ":" in spec:
         from facesim.kinematics.rig_jaw import rig_jaw_from_spec
 

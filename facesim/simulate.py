@@ -101,7 +101,7 @@ def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.n
     """
     from facesim.controls import RigidJaw
 
-    if isinstance(jaw_model, str) and ":" in jaw_model:
+    if isinstance(jaw_model, str) and (":" in jaw_model or jaw_model == "posselt"):
         from facesim.session import make_jaw_model
 
         jaw_model = make_jaw_model(model, jaw_model)

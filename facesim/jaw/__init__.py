@@ -4,11 +4,14 @@
 - ``frame`` -- the jaw coordinate frame (Zoss et al. 2018 section 3.1).
 - ``motion`` -- synthetic TMJ motion: subjects and capture-like sessions.
 - ``classic`` -- the traditional 1/3/5/6-DOF rigs with an optimised pivot (Zoss eqs. 1, 6-8).
-- ``posselt`` -- the Posselt-envelope rig: shield, unit-cube sliders, RBF map (Zoss eqs. 3, 9, 15).
+- ``posselt`` -- the Posselt-envelope rig: shield (from labelled or unlabelled border movements),
+  unit-cube sliders, RBF map (Zoss eqs. 3, 9, 15).
+- ``model_rig`` -- a face model's own Posselt rig, fitted to motion generated for its TMJ.
 - ``retarget`` -- a Posselt rig bent onto a new subject from a few extremal poses (Zoss section 5).
 - ``nlpca`` -- se(3) chart, linear PCA, hierarchical nonlinear PCA and the 3-parameter rig (Yang et al. 2018).
 - ``evaluate`` -- mandible points, front-weighted errors, train/test comparison of rigs.
 - ``rigfile`` -- fitted rigs on disk (versioned .npz).
+- ``figures`` -- pictures of a rig's envelope.
 
 Names are imported on first use (PEP 562), so ``facesim --help``, which registers the ``jaw``
 commands of :mod:`facesim.jaw.cli`, does not pay for scipy and the rigs.
@@ -21,9 +24,10 @@ _EXPORTS = {
     "compare_rigs": "evaluate", "front_weights": "evaluate", "mandible_points": "evaluate",
     "pose_errors": "evaluate",
     "JawFrame": "frame",
-    "JawMotion": "motion", "Session": "motion", "Subject": "motion",
+    "JawMotion": "motion", "Session": "motion", "Subject": "motion", "subject_for": "motion",
+    "find_model_rig": "model_rig", "fit_model_rig": "model_rig",
     "NlpcaRig": "nlpca", "Se3Chart": "nlpca", "fit_nlpca": "nlpca", "fit_pca": "nlpca",
-    "PosseltRig": "posselt", "Shield": "posselt", "fit_posselt": "posselt",
+    "PosseltRig": "posselt", "Shield": "posselt", "detect_border": "posselt", "fit_posselt": "posselt",
     "retarget_posselt": "retarget",
 }
 
@@ -63,7 +67,10 @@ __all__ = [
     "Shield",
     "Subject",
     "compare_rigs",
+    "detect_border",
+    "find_model_rig",
     "fit_classic",
+    "fit_model_rig",
     "fit_nlpca",
     "fit_pca",
     "fit_posselt",
@@ -73,4 +80,5 @@ __all__ = [
     "pose_errors",
     "retarget_posselt",
     "se3",
+    "subject_for",
 ]

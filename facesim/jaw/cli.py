@@ -9,7 +9,8 @@ optionally ``reference_point (3,)`` mm (the lower incisal point at rest; default
 model's incisor), ``mandible (P, 3)`` mm and ``weights (P,)`` (the points the errors are measured
 on; default the shipped model's mandible with front weights, Zoss et al. 2018 Fig. 8),
 ``segment_names (S,)`` and ``segment_bounds (S, 2)`` (labelled movements, as written by
-``facesim jaw generate``; a Posselt rig needs the six border movements among them), and for
+``facesim jaw generate``; a Posselt rig uses the six border movements among them, or finds them
+in unlabelled poses), and for
 ``retarget`` ``names (K,)`` (rest, open, protrusion, left, right) or ``sliders (K, 3)``.
 """
 
@@ -168,14 +169,15 @@ def cmd_jaw_fit(args) -> int:
     if args.rig == "posselt":
         from facesim.jaw.posselt import CURVES, fit_posselt
 
-        missing = [c for c in CURVES if pf.segments is None or not len(pf.segments.get(c, ()))]
-        if missing:
-            raise FacesimError(
-                f"{pf.path}: a posselt rig needs the six border movements labelled in 'segment_names'/"
-                f"'segment_bounds' ({', '.join(CURVES)}); missing: {', '.join(missing)}. Write them with "
-                f"Session.save or 'facesim jaw generate', or fit --rig nlpca or a classic rig on unlabelled poses")
-        rig = fit_posselt(poses=pf.poses, reference_point=pf.reference_point, frame=frame,
-                          border={c: pf.segments[c] for c in CURVES})
+        labelled = pf.segments is not None and all(len(pf.segments.get(c, ())) for c in CURVES)
+        if not labelled:
+            print(f"{pf.path}: no labels for the six border movements ({', '.join(CURVES)}); finding them in the "
+                  f"poses (the capture must trace the borders)")
+        try:
+            rig = fit_posselt(poses=pf.poses, reference_point=pf.reference_point, frame=frame,
+                              border={c: pf.segments[c] for c in CURVES} if labelled else "detect")
+        except FacesimError as exc:
+            raise FacesimError(f"{pf.path}: {exc}") from None
     elif args.rig == "nlpca":
         from facesim.jaw.nlpca import fit_nlpca
 
@@ -260,54 +262,6 @@ def cmd_jaw_pose(args) -> int:
     return 0
 
 
-def _plot_envelope(rig, path: Path, data=None, title: str = ""):
-    """Matplotlib 3D picture of the rig's envelope (reference-point positions, jaw frame, mm) with
-    the reference points of ``data`` poses ``(N, 4, 4)``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from facesim._files import atomic_write
-    from facesim.jaw.posselt import PosseltRig
-
-    fig = plt.figure(figsize=(8, 8))
-    ax = fig.add_subplot(projection="3d")
-    if isinstance(rig, PosseltRig):
-        n = 25
-        c = np.linspace(0.0, 1.0, n)
-        a, b = np.meshgrid(c, c, indexing="ij")
-        for axis in range(3):
-            for value in (0.0, 1.0):
-                s = np.empty((n, n, 3))
-                s[..., axis] = value
-                s[..., [k for k in range(3) if k != axis]] = np.stack([a, b], -1)
-                P = rig.shield.point(s)
-                ax.plot_surface(P[..., 0], P[..., 2], P[..., 1], alpha=0.25, color="tab:blue", linewidth=0)
-        for curve in rig.shield.curves:
-            ax.plot(curve[:, 0], curve[:, 2], curve[:, 1], color="navy", linewidth=1.5)
-    else:
-        d1 = np.linspace(rig.grid[0], rig.grid[-1], 40)
-        lo, hi = rig.ranges(d1)
-        for t in np.linspace(0.0, 1.0, 7):
-            for u in np.linspace(0.0, 1.0, 7):
-                if 0.0 < t < 1.0 and 0.0 < u < 1.0:
-                    continue
-                d = np.c_[d1, lo[:, 0] + t * (hi[:, 0] - lo[:, 0]), lo[:, 1] + u * (hi[:, 1] - lo[:, 1])]
-                P = rig.frame.pose_to_local(rig.transform(d))[:, :3, 3]
-                ax.plot(P[:, 0], P[:, 2], P[:, 1], color="tab:blue", linewidth=1.0, alpha=0.6)
-    if data is not None:
-        P = rig.frame.pose_to_local(data)[:, :3, 3]
-        ax.scatter(P[:, 0], P[:, 2], P[:, 1], s=2, color="tab:red", alpha=0.5, label="data")
-        ax.legend(loc="upper right")
-    ax.set_xlabel("x, left (mm)")
-    ax.set_ylabel("z, forward (mm)")
-    ax.set_zlabel("y, up (mm)")
-    ax.set_title(title)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=120))
-    plt.close(fig)
-
-
 def cmd_jaw_envelope(args) -> int:
     from facesim.jaw.classic import ClassicRig
 
@@ -316,7 +270,9 @@ def cmd_jaw_envelope(args) -> int:
     if isinstance(rig, ClassicRig):
         raise FacesimError(f"{args.rig}: a {rig.dof} rig has no envelope; expected a posselt or nlpca rig")
     data = read_poses(args.poses).poses if args.poses else None
-    _plot_envelope(rig, out, data, title=f"{_kind(rig)} rig {Path(args.rig).name}: envelope of the incisal point")
+    from facesim.jaw.figures import envelope_figure
+
+    envelope_figure(rig, out, data, title=f"{_kind(rig)} rig {Path(args.rig).name}: envelope of the incisal point")
     print(f"wrote {out}")
     return 0
 
@@ -327,8 +283,15 @@ def cmd_jaw_generate(args) -> int:
     from facesim.jaw.retarget import EXTREMES
 
     out = require_suffix(args.output, (".npz",), "a poses file name")
-    subject = Subject() if args.subject is None else Subject.random(args.subject)
-    motion = JawMotion(subject=subject)
+    if args.model:
+        from facesim.jaw.motion import subject_for
+        from facesim.model import FaceModel
+
+        geometry = FaceModel.load(args.model).jaw
+        subject = subject_for(geometry) if args.subject is None else Subject.random(args.subject)
+    else:
+        geometry, subject = None, Subject() if args.subject is None else Subject.random(args.subject)
+    motion = JawMotion(geometry, subject)
     if args.extremes:
         latent = {"rest": (0.0, 0.0, 0.0), "open": (1.0, 0.0, 0.0), "protrusion": (0.0, 1.0, 0.0),
                   "left": (0.0, 0.0, 1.0), "right": (0.0, 0.0, -1.0)}
@@ -356,6 +319,35 @@ def cmd_jaw_generate(args) -> int:
     return 0
 
 
+def cmd_jaw_fit_model(args) -> int:
+    from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
+    from facesim.jaw.model_rig import (
+        TEST_SEED,
+        fit_model_rig,
+        model_motion,
+        model_rig_path,
+    )
+    from facesim.jaw.motion import subject_for
+    from facesim.model import FaceModel
+
+    model = FaceModel.load(args.model)
+    out = require_suffix(args.output, (".npz",), "a rig file name") if args.output else model_rig_path(args.model)
+    start = time.perf_counter()
+    rig = fit_model_rig(model.jaw, seed=args.session, noise=args.noise)
+    seconds = time.perf_counter() - start
+    path = rig.save(out)
+    test = model_motion(model.jaw, TEST_SEED if args.session != TEST_SEED else TEST_SEED + 1, args.noise)
+    points = mandible_points(model)
+    e = pose_errors(rig.reproduce(test.poses), test.poses, points, front_weights(points, rig.frame))
+    subject = subject_for(model.jaw)
+    print(f"fitted the posselt rig of {args.model}'s TMJ (maximum opening {np.degrees(model.jaw.max_opening):.1f} "
+          f"degrees = {subject.max_opening:.1f} mm at the incisor, condylar translation "
+          f"{subject.condyle_translation:g} mm) in {seconds:.1f} s -> {path}")
+    print(f"error on a second generated session of {len(test.poses)} frames (weighted mandible vertices, mm): "
+          f"mean {e.mean:.3f}, 95th percentile {e.p95:.3f}, max {e.max:.3f}")
+    return 0
+
+
 # ------------------------------------------------------------------ parser
 def _at_least(minimum, kind=float):
     """argparse type: a finite ``kind`` (float or int) >= ``minimum``."""
@@ -373,7 +365,7 @@ def _at_least(minimum, kind=float):
 
 
 def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
-    """Add ``facesim jaw {fit,eval,retarget,pose,envelope,generate}`` to the ``subparsers`` of the
+    """Add ``facesim jaw {fit,eval,retarget,pose,envelope,fit-model,generate}`` to the ``subparsers`` of the
     ``facesim`` parser; returns the ``jaw`` parser."""
     poses_help = ("poses .npz: poses (N, 4, 4) mandible relative to skull, mm; optional reference_point (3,), "
                   "mandible (P, 3), weights (P,), segment labels")
@@ -386,7 +378,8 @@ def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
         epilog="Poses file (.npz): poses (N, 4, 4) mandible relative to the skull (mm, rest = identity); optional "
                "reference_point (3,) mm (default: the shipped model's incisor), mandible (P, 3) mm and weights (P,) "
                "(default: the shipped model's mandible, front-weighted), segment_names (S,) and segment_bounds (S, 2) "
-               "(labelled movements; a posselt rig needs the six border movements), names (K,) or sliders (K, 3) "
+               "(labelled movements; a posselt rig uses the six border movements, found in the poses when "
+               "unlabelled), names (K,) or sliders (K, 3) "
                "for retarget.")
     sub = jaw.add_subparsers(dest="jaw_command", metavar="SUBCOMMAND", required=True)
 
@@ -441,6 +434,21 @@ def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
     env.add_argument("--poses", metavar="P.npz", help="poses whose incisal points to draw")
     env.set_defaults(func=cmd_jaw_envelope)
 
+    fm = sub.add_parser("fit-model", help="fit a face model's own posselt rig (for --jaw-model posselt)",
+                        description="Generate jaw motion for the TMJ of a face model (its condyles, tracks, "
+                                    "maximum opening and incisor; facesim.jaw.motion.subject_for) and fit a posselt "
+                                    "rig to it, recording the TMJ in the rig. Written next to the model as "
+                                    "M_posselt.npz, where '--jaw-model posselt' (no file) finds it; the shipped "
+                                    "models' rig is meshes/face_coarse_posselt.npz.")
+    fm.add_argument("--model", required=True, metavar="M.npz", help="face model file")
+    fm.add_argument("-o", "--output", metavar="RIG.npz", help="rig file to write (default: M_posselt.npz next to "
+                                                              "the model)")
+    fm.add_argument("--session", type=int, default=1, metavar="SEED",
+                    help="seed of the generated session the rig is fitted to (default: %(default)s)")
+    fm.add_argument("--noise", type=_at_least(0.0), default=0.0,
+                    help="capture noise added to the generated poses, mm (default: %(default)s)")
+    fm.set_defaults(func=cmd_jaw_fit_model)
+
     gen = sub.add_parser("generate", help="write a synthetic capture session (no data needed)",
                          description="Generate mandible poses from the TMJ anatomy of the shipped model "
                                      "(facesim.jaw.motion): a capture-like session with labelled border movements, "
@@ -448,6 +456,9 @@ def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
                                      "retargeting needs.")
     gen.add_argument("--subject", type=int, default=None, metavar="SEED",
                      help="random subject (TMJ and incisal ranges) of this seed (default: the default subject)")
+    gen.add_argument("--model", metavar="M.npz",
+                     help="the face model whose TMJ moves (default: the shipped model's); without --subject its own "
+                          "subject (maximum opening and condylar translation within the model's limits)")
     gen.add_argument("--session", type=int, default=0, metavar="SEED",
                      help="seed of the session's durations, amplitudes and noise (default: %(default)s)")
     gen.add_argument("--kinds", nargs="+", choices=("border", "chewing", "speech", "free"),

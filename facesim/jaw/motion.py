@@ -136,6 +136,52 @@ class Subject:
         return cls(**{name: float(rng.uniform(lo, hi)) for name, (lo, hi) in cls.RANGES.items()})
 
 
+def subject_for(geometry: JawGeometry | None = None, base: Subject | None = None, up=UP) -> Subject:
+    """The subject of a face model's own TMJ: ``base`` (default ``Subject()``) with its condylar
+    translation within the geometry's ``track_length`` (1 mm short of it) and its hinge and
+    maximum openings (mm) scaled by one factor so that the rotation about the intercondylar axis
+    at the maximum opening is the geometry's ``max_opening`` (rad): the generated motion stays
+    inside the sliding-condyle model's limits, with the subject's proportions.
+
+    geometry : JawGeometry (default the shipped model's ``jaw``); up : the skull's up direction.
+    """
+    if geometry is None:
+        from facesim.jaw._shipped import shipped_model
+
+        geometry = shipped_model().jaw
+    base = Subject() if base is None else base
+    sub = dataclasses.replace(base, condyle_translation=min(base.condyle_translation, geometry.track_length - 1.0))
+    if sub.condyle_translation <= 0:
+        raise FacesimError(f"jaw.track_length: {geometry.track_length:g} mm leaves no condylar translation")
+
+    def scaled(k):
+        return dataclasses.replace(sub, hinge_opening=k * sub.hinge_opening, max_opening=k * sub.max_opening)
+
+    def excess(k):            # rotation at the maximum opening minus the geometry's, rad (nan: unreachable)
+        try:
+            return JawMotion(geometry, scaled(k), up).max_rotation - geometry.max_opening
+        except FacesimError:
+            return np.nan
+
+    # the rotation grows with the openings: walk from k = 1 in steps of 6% to a bracket (openings
+    # too large for the geometry are unreachable, nan: walk down past them)
+    k, value = 1.0, excess(1.0)
+    factor = 1.06 if value < 0 else 1 / 1.06
+    lo = hi = k
+
+    def beyond(v):
+        return v < 0 if factor > 1 else v > 0
+
+    while (np.isnan(value) and factor < 1 or beyond(value)) and 0.2 < k < 3.0:
+        k *= factor
+        lo, hi, value = k, lo, excess(k)
+    if not np.isfinite(value) or beyond(value) or np.isnan(excess(hi)):
+        raise FacesimError(f"jaw.max_opening: {np.degrees(geometry.max_opening):.1f} degrees is not reachable with "
+                           f"{sub.condyle_translation:g} mm of condylar translation and a hinge opening "
+                           f"{sub.hinge_opening / sub.max_opening:.2f} of the maximum opening")
+    return scaled(float(brentq(excess, min(lo, hi), max(lo, hi), xtol=1e-10)))
+
+
 @dataclass(frozen=True)
 class Segment:
     """Frames ``start:stop`` of a session performing the movement ``name``."""
@@ -474,4 +520,4 @@ def _sample(moves, fps: float):
     return np.concatenate(out), names
 
 
-__all__ = ["BORDER_CURVES", "UP", "JawMotion", "Segment", "Session", "Subject"]
+__all__ = ["BORDER_CURVES", "UP", "JawMotion", "Segment", "Session", "Subject", "subject_for"]

@@ -29,6 +29,28 @@ reference point at rest):
   (the point is where it is asked to be) and only the rotation is interpolated.
 - Points outside the envelope are projected onto the shield (the closest point of the
   parameterised solid), so the rig only produces poses the subject could reach.
+- ``detect_border`` -- the six border curves found in an unlabelled capture (no movement labels),
+  from the reference-point cloud alone, so the shield can be built from any capture that traced
+  the borders. In the horizontal (x, z) sections of the cloud the envelope is a hexagon whose
+  corners, clockwise, are the posterior, right posterior, right anterior, anterior, left
+  anterior and left posterior curves at that height:
+
+  * the midline runs from the rest position (the frame origin) to the deepest point of the
+    cloud; the posterior and anterior curves are the back-most and front-most points within
+    ``band`` mm of it;
+  * each curve's top, where it leaves tooth contact, is the cloud's extreme point in an upward
+    tilted direction (rest itself for the posterior curve): right posterior back-right-up,
+    right anterior front-right-up, and mirrored on the left;
+  * from the tops down, in windows of ``window`` mm of height every ``step`` mm, each corner
+    curve takes the window's extreme point along the bisector of the outward normals of the two
+    hexagon edges meeting at it (edges between the previous window's corners), so the search
+    direction follows the section as it changes from the wide contact hexagon to the thin arch
+    at the maximum opening;
+  * a pick is accepted only next to the curve so far (within 0.5 mm + 1.5 x the height
+    travelled), and a curve ends when ``gap`` mm of height pass without one: it does not run
+    along the bottom face to the midline.
+
+  The picks are then fitted like labelled frames (``Shield.from_points``).
 """
 
 from __future__ import annotations
@@ -45,6 +67,7 @@ from facesim.jaw.evaluate import farthest_points
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import BORDER_CURVES
 from facesim.jaw.rigfile import load_rig, save_rig
+from facesim.model import JawGeometry
 
 CURVES = BORDER_CURVES    # ("posterior", "anterior", "right_posterior", "left_posterior", "right_anterior", "left_anterior")
 _KNOTS = 41               # samples stored per curve, s_y = linspace(0, 1, _KNOTS)
@@ -110,6 +133,107 @@ def _untangle(curves: np.ndarray, gap: float = 0.05) -> np.ndarray:
     return c
 
 
+_RING = ("posterior", "right_posterior", "right_anterior", "anterior", "left_anterior", "left_posterior")
+#: degrees from +x toward +z of the horizontal part of the directions that find the corner tops
+_TOP_DIRECTIONS = {"right_posterior": 210.0, "right_anterior": 120.0, "left_anterior": 60.0, "left_posterior": 330.0}
+_TOP_TILT = 1.0           # weight of the height in those directions
+
+
+def _edge_normal(a, b):
+    """Outward unit normal ``(2,)`` in (x, z) of the hexagon edge a -> b (the ring is clockwise
+    there), or None when the edge is shorter than 0.5 mm."""
+    e = b - a
+    length = np.hypot(e[0], e[1])
+    return None if length < 0.5 else np.array([-e[1], e[0]]) / length
+
+
+def detect_border(points, band: float = 0.5, window: float = 2.0, step: float = 0.5, gap: float = 3.0,
+                  jump: float = 0.5, slope: float = 1.5) -> dict[str, np.ndarray]:
+    """The six border movements in an unlabelled cloud (module docstring).
+
+    points : (N, 3) mm, reference-point positions in the jaw frame (x left, y up, z forward; the
+        origin is the rest position), including the border movements.
+    band : mm, half-width of the midline band; window, step, gap : mm of height of a search
+        window, between windows, and without a pick before a curve ends; jump, slope : a pick
+        lies within ``jump + slope * (height travelled)`` mm (horizontally) of the curve so far.
+    Returns ``{curve name: indices into points}`` for the ``CURVES``, each from its top down.
+    """
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(P) < 50 or not np.isfinite(P).all():
+        raise FacesimError(f"border detection: expected at least 50 finite reference points, got {len(P)}")
+    x, y, z = P.T
+    xz = P[:, [0, 2]]
+    rest = int(np.argmin(np.linalg.norm(P, axis=1)))
+    deep = int(np.argmin(y))
+    if y[rest] - y[deep] < 10.0:
+        raise FacesimError(f"border detection: the reference point opens only {y[rest] - y[deep]:.1f} mm "
+                           f"(expected openings to the maximum among the poses)")
+
+    def x_mid(height):         # the midline: rest to the deepest point
+        return x[rest] + (y[rest] - height) / (y[rest] - y[deep]) * (x[deep] - x[rest])
+
+    def side(c, idx, height):  # the points idx on the curve's side of the midline (at heights ``height``)
+        offset = x[idx] - x_mid(height)
+        return idx[offset < 0] if c.startswith("right") else idx[offset > 0]
+
+    everything = np.arange(len(P))
+    tops = {"posterior": rest}
+    on_mid = everything[np.abs(x - x_mid(y)) <= band]
+    tops["anterior"] = int(on_mid[np.argmax(z[on_mid] + _TOP_TILT * y[on_mid])])
+    for c, degrees in _TOP_DIRECTIONS.items():
+        idx = side(c, everything, y[everything])
+        if not len(idx):
+            raise FacesimError(f"border detection: no reference points on the {c.split('_')[0]} side")
+        d = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees))])
+        tops[c] = int(idx[np.argmax(xz[idx] @ d + _TOP_TILT * y[idx])])
+
+    current = {c: xz[tops[c]].copy() for c in _RING}       # each curve's last accepted pick
+    height = {c: y[tops[c]] for c in _RING}
+    picks = {c: [tops[c]] for c in _RING}
+    direction: dict[str, np.ndarray] = {}
+
+    def turn():               # search directions: bisectors of the edge normals at each corner
+        for k, c in enumerate(_RING):
+            if c in ("posterior", "anterior"):
+                continue
+            n1 = _edge_normal(current[_RING[k - 1]], current[c])
+            n2 = _edge_normal(current[c], current[_RING[(k + 1) % len(_RING)]])
+            normals = [n for n in (n1, n2) if n is not None]
+            if not normals or (len(normals) < 2 and c in direction):
+                continue        # a degenerate edge (the corners meet): keep the last direction
+            v = np.sum(normals, axis=0)
+            if np.hypot(v[0], v[1]) > 1e-9:
+                direction[c] = v / np.hypot(v[0], v[1])
+        for c in _RING[1:3] + _RING[4:]:
+            if c not in direction:
+                raise FacesimError(f"border detection: the {c.replace('_', ' ')} corner coincides with its "
+                                   f"neighbours at tooth contact (expected lateral and protrusive border movements)")
+
+    turn()
+    alive = list(_RING)
+    level = y[rest] - step
+    while level > y[deep] - window / 2 and alive:
+        in_window = everything[np.abs(y - level) <= window / 2]
+        for c in list(alive):
+            idx = in_window[y[in_window] < y[tops[c]]]
+            if c in ("posterior", "anterior"):
+                idx = idx[np.abs(x[idx] - x_mid(level)) <= band]
+                i = None if not len(idx) else int(idx[np.argmin(z[idx]) if c == "posterior" else np.argmax(z[idx])])
+            else:
+                idx = side(c, idx, level)
+                i = None if not len(idx) else int(idx[np.argmax(xz[idx] @ direction[c])])
+            if i is not None and np.hypot(*(xz[i] - current[c])) <= jump + slope * abs(height[c] - y[i]):
+                if i not in picks[c]:
+                    picks[c].append(i)
+                if y[i] < height[c]:
+                    current[c], height[c] = xz[i].copy(), y[i]
+            if height[c] - level > gap + window / 2:
+                alive.remove(c)
+        turn()
+        level -= step
+    return {c: np.array(picks[c], dtype=np.int64) for c in CURVES}
+
+
 class Shield:
     """Posselt's envelope as six border curves and the unit-cube map ``S``.
 
@@ -141,6 +265,13 @@ class Shield:
             raise FacesimError(f"border movements missing: {', '.join(missing)} (need all of {', '.join(CURVES)})")
         return cls(_untangle(np.stack([_fit_curve(np.asarray(border[c], dtype=np.float64).reshape(-1, 3), c)
                                        for c in CURVES])))
+
+    @classmethod
+    def from_cloud(cls, points, **options) -> Shield:
+        """Shield from an unlabelled cloud of reference-point positions ``(N, 3)`` mm (jaw frame)
+        that includes the border movements (:func:`detect_border`; ``options`` go to it)."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return cls.from_points({c: points[i] for c, i in detect_border(points, **options).items()})
 
     def _edges(self, s, derivative: bool = False):
         """Posterior and anterior section edges at s (N, 3) -> (N, 3) each, plus their s_x and s_y
@@ -255,6 +386,16 @@ class Shield:
 
 # --- the rig -----------------------------------------------------------------------------------
 
+_TMJ_FIELDS = ("condyle_right", "condyle_left", "track_direction", "track_length", "max_opening", "incisor")
+
+
+def _tmj_values(geometry) -> dict:
+    """The fields of a JawGeometry as JSON-ready numbers (None: just the field names)."""
+    if geometry is None:
+        return dict.fromkeys(_TMJ_FIELDS)
+    return {k: np.asarray(getattr(geometry, k), dtype=np.float64).tolist() for k in _TMJ_FIELDS}
+
+
 def _design(p, centres, scale):
     """RBF design matrix ``(N, M + 4)``: [phi(|p − c_i| / scale) | 1 | p / scale], phi(r) = r³."""
     d = np.linalg.norm(p[:, None, :] - centres[None], axis=2) / scale
@@ -267,7 +408,9 @@ class PosseltRig:
 
     frame : JawFrame; shield : Shield (jaw frame);
     centres : (M, 3) mm RBF centres (jaw frame); coefficients : (M + 4, 3) the weights and the
-        affine part of omega(p) (rad); scale : mm, the RBF length unit.
+        affine part of omega(p) (rad); scale : mm, the RBF length unit;
+    tmj : the :class:`~facesim.model.JawGeometry` whose generated motion the rig was fitted to
+        (a face model's own rig, ``facesim jaw fit-model``), or None (fitted to capture).
 
     Poses are mandible-relative-to-skull transforms in the skull frame (mm); points are
     reference-point positions in the skull frame unless a method says otherwise.
@@ -278,6 +421,15 @@ class PosseltRig:
     centres: np.ndarray
     coefficients: np.ndarray
     scale: float
+    tmj: JawGeometry | None = None
+
+    def made_for(self, geometry: JawGeometry, tolerance: float = 1e-6) -> bool:
+        """Whether the rig was fitted to motion generated for the TMJ ``geometry`` (condyles,
+        track, incisor within ``tolerance`` mm, same track length and maximum opening)."""
+        if self.tmj is None:
+            return False
+        a, b = _tmj_values(self.tmj), _tmj_values(geometry)
+        return all(np.abs(np.asarray(a[k]) - np.asarray(b[k])).max() <= tolerance for k in a)
 
     @property
     def reference_point(self) -> np.ndarray:
@@ -327,9 +479,12 @@ class PosseltRig:
 
     def save(self, path):
         """Write the rig to a versioned ``.npz`` (:mod:`facesim.jaw.rigfile`)."""
+        meta = {"scale": self.scale, "curves": list(CURVES)}
+        if self.tmj is not None:
+            meta["tmj"] = _tmj_values(self.tmj)
         return save_rig(path, "posselt", {
             "frame_origin": self.frame.origin, "frame_axes": self.frame.axes, "curves": self.shield.curves,
-            "centres": self.centres, "coefficients": self.coefficients}, {"scale": self.scale, "curves": list(CURVES)})
+            "centres": self.centres, "coefficients": self.coefficients}, meta)
 
     @staticmethod
     def load(path) -> PosseltRig:
@@ -343,39 +498,54 @@ class PosseltRig:
             raise ModelFileError(path, f"fields 'centres' / 'coefficients': expected (M, 3) and (M + 4, 3), "
                                        f"got {c.shape} and {w.shape}")
         try:
+            tmj = None if meta.get("tmj") is None else JawGeometry(**meta["tmj"])
+        except (TypeError, ValueError, FacesimError) as exc:
+            raise ModelFileError(path, f"field 'meta.tmj': expected the jaw geometry's fields "
+                                       f"({', '.join(_tmj_values(None))}): {exc}") from None
+        try:
             return PosseltRig(JawFrame(arrays["frame_origin"], arrays["frame_axes"]), Shield(arrays["curves"]),
-                              c.astype(np.float64), w.astype(np.float64), float(meta["scale"]))
+                              c.astype(np.float64), w.astype(np.float64), float(meta["scale"]), tmj)
         except FacesimError as exc:
             raise ModelFileError(path, str(exc)) from None
 
 
 def fit_posselt(session=None, *, poses=None, reference_point=None, border=None, frame: JawFrame | None = None,
-                centres: int = 300, smoothing: float = 1e-6, scale: float = 10.0) -> PosseltRig:
+                centres: int = 300, smoothing: float = 1e-6, scale: float = 10.0, tmj=None) -> PosseltRig:
     """Fit a :class:`PosseltRig` to captured poses.
 
     session : a :class:`facesim.jaw.motion.Session` (poses, reference point and labelled border
-        movements); or give ``poses (N, 4, 4)``, ``reference_point (3,)`` mm and ``border`` =
-        ``{curve name: frame indices}`` for the six ``CURVES`` instead.
+        movements); or give ``poses (N, 4, 4)`` and ``reference_point (3,)`` mm instead.
+    border : ``{curve name: frame indices}`` for the six ``CURVES``; None: the session's labels,
+        or without a session the border movements found in the poses (:func:`detect_border`);
+        ``"detect"``: found in the poses even when a session has labels.
     frame : jaw frame (default ``JawFrame.from_poses``).
     centres : number of RBF centres (farthest-point sample of the data); smoothing : ridge weight
         of eq. 9 relative to the data term; scale : mm, RBF length unit.
+    tmj : the :class:`facesim.model.JawGeometry` the poses were generated for, recorded in the rig
+        (None for captured poses).
     """
     if session is not None:
         poses, reference_point = session.poses, session.reference_point
-        border = {c: session.frames(c) for c in CURVES}
-    if poses is None or reference_point is None or border is None:
-        raise FacesimError("fit_posselt: expected a session, or poses, reference_point and border frames")
+        if border is None:
+            border = {c: session.frames(c) for c in CURVES}
+    if poses is None or reference_point is None:
+        raise FacesimError("fit_posselt: expected a session, or poses and reference_point")
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) < 10 or not np.isfinite(poses).all():
         raise FacesimError(f"poses: expected finite (N, 4, 4) with N >= 10, got {poses.shape}")
     if not smoothing >= 0 or not scale > 0 or int(centres) < 4:
         raise FacesimError("fit_posselt: expected smoothing >= 0, scale > 0 mm and at least 4 centres")
+    if isinstance(border, str) and border != "detect":
+        raise FacesimError(f"fit_posselt: border must be frame indices per curve, None or 'detect', got {border!r}")
     if frame is None:
         frame = JawFrame.from_poses(poses, reference_point)
     local = frame.pose_to_local(poses)
     p = local[:, :3, 3]
     omega = se3.so3_log(local[:, :3, :3])
-    shield = Shield.from_points({c: p[np.asarray(border[c], dtype=int)] for c in CURVES if c in border})
+    if border is None or isinstance(border, str):
+        shield = Shield.from_cloud(p)
+    else:
+        shield = Shield.from_points({c: p[np.asarray(border[c], dtype=int)] for c in CURVES if c in border})
     C = p[farthest_points(p, int(centres))]
     A = _design(p, C, scale)
     # eq. 9: least squares on the data with a ridge on the RBF weights (not on the affine part)
@@ -384,7 +554,7 @@ def fit_posselt(session=None, *, poses=None, reference_point=None, border=None, 
     H = A.T @ A
     H[np.arange(len(C)), np.arange(len(C))] += smoothing * len(p)
     coefficients = solve(H, A.T @ omega, assume_a="sym")
-    return PosseltRig(frame, shield, C, coefficients, float(scale))
+    return PosseltRig(frame, shield, C, coefficients, float(scale), tmj)
 
 
-__all__ = ["CURVES", "PosseltRig", "Shield", "fit_posselt"]
+__all__ = ["CURVES", "PosseltRig", "Shield", "detect_border", "fit_posselt"]

@@ -187,4 +187,21 @@ def rig_jaw_from_spec(model, spec: str, penalty_weight=1.0) -> RigJaw:
     return RigJaw(rig, None if near else JawFrame.from_geometry(model.jaw), penalty_weight)
 
 
-__all__ = ["KINDS", "RigJaw", "rig_jaw_from_spec"]
+def model_rig_jaw(model, model_path=None, penalty_weight=1.0) -> RigJaw:
+    """The :class:`RigJaw` of the model's own Posselt rig (``--jaw-model posselt`` without a file):
+    the rig fitted to motion generated for ``model.jaw`` (:mod:`facesim.jaw.model_rig`), found next
+    to ``model_path`` (``<model>_posselt.npz``) or among the shipped rigs by its recorded TMJ."""
+    from facesim.jaw.model_rig import find_model_rig, model_rig_path
+    from facesim.jaw.posselt import PosseltRig
+
+    path = find_model_rig(model.jaw, model_path)
+    if path is None:
+        where = f"{model_rig_path(model_path)} or " if model_path is not None else ""
+        name = model_path if model_path is not None else "M.npz"
+        raise FacesimError(f"jaw model 'posselt': no posselt rig fitted for this model's TMJ in {where}meshes/*_posselt.npz; "
+                           f"make one with 'facesim jaw fit-model --model {name}' and pass "
+                           f"--jaw-model posselt:{model_rig_path(name)}")
+    return RigJaw(PosseltRig.load(path), None, penalty_weight)
+
+
+__all__ = ["KINDS", "RigJaw", "model_rig_jaw", "rig_jaw_from_spec"]

@@ -13,11 +13,12 @@ from facesim.jaw.evaluate import (
     format_table,
     front_weights,
     mandible_points,
+    pose_errors,
     synthetic_mandible,
 )
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion, Subject
-from facesim.jaw.posselt import CURVES, PosseltRig, Shield, fit_posselt
+from facesim.jaw.posselt import CURVES, PosseltRig, Shield, detect_border, fit_posselt
 
 
 @pytest.fixture(scope="module")
@@ -202,6 +203,36 @@ def test_save_load_round_trip(rig, tmp_path):
     (tmp_path / "junk.npz").write_text("not a zip")
     with pytest.raises(ModelFileError, match="junk.npz: not a readable"):
         PosseltRig.load(tmp_path / "junk.npz")
+
+
+def test_border_found_in_unlabelled_poses(rig, train, motion, points):
+    """Without movement labels the six border curves are found in the reference-point cloud: the
+    shield then lies within 0.2 mm (mean) and 1 mm (max) of the one fitted to the labelled border
+    movements, both ways, and the rig is as good on a held-out session."""
+    local = rig.frame.pose_to_local(train.poses)[:, :3, 3]
+    found = detect_border(local)
+    for c in CURVES:                   # the picks are mostly frames of that very border movement
+        assert len(found[c]) >= 20 and np.isin(found[c], train.frames(c)).mean() > 0.7, c
+    shield = Shield.from_cloud(local)
+    labelled = rig.shield
+    for a, b in ((shield, labelled), (labelled, shield)):
+        d = cKDTree(b.point(b.face_samples(120))).query(a.point(a.face_samples(40)))[0]
+        assert d.mean() < 0.2 and d.max() < 1.0, (d.mean(), d.max())
+    assert shield.bijectivity() > 0.99
+    detected = fit_posselt(poses=train.poses, reference_point=train.reference_point, frame=rig.frame)
+    assert np.array_equal(detected.shield.curves, shield.curves)
+    assert np.array_equal(fit_posselt(train, frame=rig.frame, border="detect").shield.curves, shield.curves)
+    test = motion.session(seed=2, noise=0.03)
+    w = front_weights(points, rig.frame)
+    e_labelled = pose_errors(rig.reproduce(test.poses), test.poses, points, w)
+    e_found = pose_errors(detected.reproduce(test.poses), test.poses, points, w)
+    assert e_found.mean < 0.2 and e_found.mean < e_labelled.mean + 0.05, (e_found.mean, e_labelled.mean)
+
+
+def test_border_detection_needs_border_movements(motion):
+    speech = motion.session(seed=4, kinds=("speech",))
+    with pytest.raises(FacesimError, match="border detection: "):
+        detect_border(JawFrame.from_geometry(motion.geometry).pose_to_local(speech.poses)[:, :3, 3])
 
 
 def test_fit_needs_the_border_movements(train):
