@@ -263,12 +263,32 @@ class SurfaceContactTerm:
                 f"radius={self.radius:.3g})")
 
 
-def lip_contact_term(model, stiffness: float = DEFAULT_STIFFNESS, margin: float = 0.0, **kwargs) -> SurfaceContactTerm:
+#: Lip nodes closer than this to the other lip at rest (mm) are the corners of the mouth, where
+#: the two lip surfaces meet: they carry no lip contact.
+CORNER_GAP = 0.3
+
+
+def lip_contact_term(model, stiffness: float = DEFAULT_STIFFNESS, margin: float = 0.0,
+                     corner_gap: float = CORNER_GAP, **kwargs) -> SurfaceContactTerm:
     """Upper lip against lower lip of ``model`` (``model.lip_upper``, ``lip_lower``), area-weighted
     (``stiffness`` N/mm^3), rest distances from ``model.X``; ``kwargs`` go to
-    :class:`SurfaceContactTerm` (``radius``, ``max_depth``, ``max_cos``)."""
-    return SurfaceContactTerm(model.lip_upper, model.lip_lower, model.X, stiffness=stiffness, margin=margin,
-                              **kwargs)
+    :class:`SurfaceContactTerm` (``radius``, ``max_depth``, ``max_cos``).
+
+    Nodes within ``corner_gap`` mm of the other lip at rest (touching it, or just behind its rim,
+    at the corners of the mouth where the surfaces meet) get weight 0: there "the other lip" is
+    the same flesh, and a penalty on such a node pulls it across the corner one way while the
+    flesh holds it the other. On the shipped coarse face three such nodes took Newton from 42 to
+    199 iterations (35 without them) with orbicularis oris fully active; the slit keeps its contact either way.
+    """
+    def term(weights):
+        return SurfaceContactTerm(model.lip_upper, model.lip_lower, model.X, stiffness=stiffness, margin=margin,
+                                  weights=weights, **kwargs)
+
+    full = term("area")
+    corner = full.rest_distances <= corner_gap
+    if not corner.any():
+        return full
+    return term(np.where(corner, 0.0, full.weights))
 
 
 __all__ = ["SurfaceContactTerm", "lip_contact_term", "mean_edge_length"]
