@@ -277,8 +277,8 @@ def lip_contact_term(model, stiffness: float = DEFAULT_STIFFNESS, margin: float 
     Nodes within ``corner_gap`` mm of the other lip at rest (touching it, or just behind its rim,
     at the corners of the mouth where the surfaces meet) get weight 0: there "the other lip" is
     the same flesh, and a penalty on such a node pulls it across the corner one way while the
-    flesh holds it the other. On the shipped coarse face three such nodes took Newton from 42 to
-    199 iterations (35 without them) with orbicularis oris fully active; the slit keeps its contact either way.
+    flesh holds it the other. On the shipped coarse face three such nodes took Newton to 199
+    iterations (35 without them) with orbicularis oris fully active; the slit keeps its contact.
     """
     def term(weights):
         return SurfaceContactTerm(model.lip_upper, model.lip_lower, model.X, stiffness=stiffness, margin=margin,
