@@ -16,10 +16,38 @@ the weight at which a unit bound violation costs as much as the marker noise, an
 model warm-started from the last -- until it reaches ``final_ratio`` (1e6) times the data term.
 The step is then searched along by golden section on the true objective, each trial point an
 equilibrium warm-started from the interpolation of the bracketing equilibria.
+
+Speed (issue 5; the paper's figures: tracking frames usually take one Gauss-Newton step, the
+line search ~10 % of the time):
+
+* **Full step first.** The step ``dc`` is tried at length 1 (an equilibrium warm-started from the
+  Jacobian's first-order prediction) and kept when the objective drops by at least
+  ``accept_ratio`` of what the linear model predicted -- lengthened by one more trial where the
+  markers moved less than predicted (stiffening tissue). When it fails, one backtracking trial at
+  the minimum of the parabola through ``F(0)``, ``F'(0)``, ``F(1)``, and if that fails too the
+  golden-section search on ``[0, 1]`` (``line_search="golden"`` always searches ``[0, max_step]``,
+  as the paper does).
+* **Jacobian reuse.** After every step the Jacobian is moved to the new equilibrium by a secant
+  (Broyden) update, exact along the step, and serves the next step and the next frame
+  (``fit_frame(..., jacobian=previous_fit.jacobian)``). It is evaluated anew when the secant
+  mismatch of the last step ``|dP - J dc| / |J dc|`` exceeds ``jacobian_drift`` (the Jacobian
+  changed along the step by about twice that), when it carries more than ``jacobian_max_age``
+  updates, or when a step taken with an updated Jacobian fails the ratio test (the step is then
+  redone with the exact one).
+* **Stopping without another step.** Before each step the linear model predicts its decrease;
+  when that is below ``tolerance`` times the objective (or times the noise energy
+  ``1/2 sum w noise^2``, when the fit is already at the noise level), or below
+  ``1/2 (resolution noise)^2`` -- the step would move the controls by less than ``resolution``
+  standard deviations of their estimate under the marker noise -- or the step is below
+  ``step_tolerance``, the frame has converged: a tracked frame costs one step and one equilibrium.
+* **Chord equilibria.** Trial equilibria first try chord iterations against the factorised tangent
+  the direct Jacobian kept (:func:`~facesim.inverse.jacobian.near_equilibrium`: one gradient and
+  a triangular solve per iteration, no assembly), falling back to Newton.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -28,9 +56,13 @@ import numpy as np
 
 from facesim.controls import Controls
 from facesim.errors import FacesimError
-from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, equilibrium_jacobian
+from facesim.fem.linear import single_blas_thread
+from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, equilibrium_jacobian, near_equilibrium
 
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+ARMIJO = 1e-4              # sufficient decrease of a backtracking step, times its first-order decrease
+EXTRAPOLATE_ABOVE = 1.03   # a kept full step is extended when the markers' response says it should be longer
+EXTEND_TRIALS = 2          # by at most this many more equilibria
 
 
 @dataclass(frozen=True)
@@ -41,7 +73,14 @@ class FitOptions:
     final_ratio : the penalty schedule (see the module doc); golden_tolerance : bracket width, as a
     fraction of the step, where the golden-section search stops; max_step : the search interval is
     [0, max_step] of the Gauss-Newton step; damping : Levenberg-Marquardt regularisation of the
-    linear model relative to its mean diagonal; linear_solver : for the Jacobian (None: automatic)."""
+    linear model relative to its mean diagonal; linear_solver : for the Jacobian (None: automatic).
+    line_search : ``"ratio"`` (keep the full step when it achieves ``accept_ratio`` of the predicted
+    decrease, else golden section) or ``"golden"`` (always golden section); jacobian_max_age : secant
+    updates a Jacobian may carry before it is evaluated anew (0: a new Jacobian at every step, as
+    the paper); jacobian_drift : secant mismatch of a step above which the next step evaluates the
+    Jacobian anew; chord : solve trial equilibria by chord iterations on the Jacobian's factorised
+    tangent first; resolution : also stop when the next step would move the controls by less than
+    this many standard deviations of their estimate under marker noise ``noise``. See the module doc."""
 
     max_steps: int = 5
     tolerance: float = 1e-3
@@ -54,37 +93,64 @@ class FitOptions:
     max_step: float = 2.0   # Gauss-Newton steps undershoot on stiffening muscles: search up to twice the step
     damping: float = 1e-6
     linear_solver: str | None = None
+    line_search: str = "ratio"
+    accept_ratio: float = 0.1
+    jacobian_max_age: int = 8
+    jacobian_drift: float = 0.1
+    chord: bool = True
+    resolution: float = 0.5
 
     def __post_init__(self):
         if not (self.growth > 1.0 and self.final_ratio > 0 and self.start_ratio > 0 and self.noise > 0):
             raise FacesimError("FitOptions: growth must be > 1 and start_ratio, final_ratio, noise > 0")
         if self.max_steps < 1 or not (0 < self.golden_tolerance < 1) or self.max_step <= 0:
             raise FacesimError("FitOptions: max_steps >= 1, 0 < golden_tolerance < 1, max_step > 0")
+        if self.line_search not in ("ratio", "golden"):
+            raise FacesimError(f"line_search: expected 'ratio' or 'golden', got {self.line_search!r}")
+        if not (0 < self.accept_ratio < 1 and self.jacobian_max_age >= 0 and self.jacobian_drift > 0
+                and self.resolution >= 0):
+            raise FacesimError("FitOptions: 0 < accept_ratio < 1, jacobian_max_age >= 0, jacobian_drift > 0, "
+                               "resolution >= 0")
 
 
 @dataclass
 class FitReport:
-    """What one frame's fit did."""
+    """What one frame's fit did. ``newton_iterations`` and ``linear_solves`` include the chord
+    iterations (``chord_iterations``); ``jacobians``: exact evaluations, ``secant_updates``: Broyden
+    updates; ``full_steps``: steps kept at length 1 without a search. ``timing`` (s): ``equilibria``
+    (the start and each step's first trial), ``jacobian`` (evaluations and updates), ``algebra``
+    (penalty schedule, objective), ``line_search`` (golden-section trials beyond the first)."""
 
     gn_steps: int = 0
     equilibria: int = 0
     newton_iterations: int = 0
     linear_solves: int = 0
+    chord_iterations: int = 0
+    jacobians: int = 0
+    secant_updates: int = 0
+    full_steps: int = 0
     marker_rms: float = float("nan")
     worst_violation: float = 0.0
     penalty_weight: float = 0.0
     schedule_steps: int = 0
     objective: list = field(default_factory=list)
     step_lengths: list = field(default_factory=list)
+    ratios: list = field(default_factory=list)   # per step: achieved / predicted decrease of the full step
     converged: bool = False
     seconds: float = 0.0
+    timing: dict = field(default_factory=lambda: dict.fromkeys(("equilibria", "jacobian", "algebra", "line_search"),
+                                                               0.0))
 
     def to_dict(self) -> dict:
-        return {k: (list(map(float, v)) if isinstance(v, list) else v) for k, v in self.__dict__.items()}
+        return {k: (list(map(float, v)) if isinstance(v, list) else dict(v) if isinstance(v, dict) else v)
+                for k, v in self.__dict__.items()}
 
 
 @dataclass
 class Fit:
+    """``jacobian``: at the result (exact or secant-updated; pass it to the next frame's
+    :func:`fit_frame`), None when the last step asked for a new evaluation."""
+
     controls: Controls
     x: np.ndarray
     markers: np.ndarray
@@ -98,16 +164,18 @@ class _Bounds:
     def __init__(self, space: ControlSpace, jaw_model):
         self.space = space
         self.jaw_model = jaw_model if space.n_jaw else None
+        self._slices = space.slices()
+        self._diag = np.arange(len(space.muscles))   # activations come first
 
     def value_grad_hess(self, c):
-        sa, sj, _ = self.space.slices()
+        sa, sj, _ = self._slices
         n = len(c)
-        g, H = np.zeros(n), np.zeros((n, n))
+        g, H = np.zeros(n), np.zeros((n, n))   # called a few hundred times per schedule: kept lean
         a = c[sa]
         ex = np.minimum(a, 0.0) + np.maximum(a - 1.0, 0.0)
         v = float(ex @ ex)
         g[sa] = 2 * ex
-        H[sa, sa] = np.diag(2.0 * (ex != 0))
+        H[self._diag, self._diag] = 2.0 * (ex != 0)
         if self.jaw_model is not None and hasattr(self.jaw_model, "penalty"):
             pv, pg, ph = self.jaw_model.penalty(c[sj])
             v += float(pv)
@@ -142,18 +210,30 @@ def schedule_penalty(r, J, c, bounds: _Bounds, options: FitOptions, w=None):
     mu = options.start_ratio * options.noise ** 2
     dc = np.zeros(len(c))
     nested = 0
+    v, g, H = bounds.value_grad_hess(c)
     while True:
         for _ in range(50):   # Newton on the piecewise-quadratic model (exact once the active set settles)
-            v, g, H = bounds.value_grad_hess(c + dc)
             grad = A @ dc + b + mu * g
             step = np.linalg.solve(A + mu * H, -grad)
             dc = dc + step
-            if np.abs(step).max() <= 1e-12 * (1.0 + np.abs(dc).max()):
+            v, g, H = bounds.value_grad_hess(c + dc)
+            # the model's gradient at the new point: zero (to round-off) when the step stayed on
+            # one quadratic piece of the penalty, so the next Newton step would be nil
+            left = A @ dc + b + mu * g
+            if np.abs(left).max() <= 1e-12 * max(np.abs(b).max(), np.abs(A @ dc).max(), 1e-300) or \
+                    np.abs(step).max() <= 1e-12 * (1.0 + np.abs(dc).max()):
                 break
         nested += 1
         model = r + J @ dc
         data = 0.5 * float(model @ (w * model))
-        if mu >= options.final_ratio * max(data, 1e-12):
+        target = options.final_ratio * max(data, 1e-12)
+        if v == 0.0 and not g.any():
+            # no bound is active at the minimum of the data term: it minimises the model for every
+            # larger weight as well, so the rest of the schedule leaves dc unchanged; count its steps
+            while mu < target:
+                mu *= options.growth
+                nested += 1
+        if mu >= target:
             return dc, mu, nested
         mu *= options.growth
 
@@ -162,17 +242,31 @@ def _residual(model, x, targets, keep) -> np.ndarray:
     return (model.marker_positions(x)[keep] - targets[keep]).ravel()
 
 
+def _reusable(J: EquilibriumJacobian | None, space: ControlSpace, c, x) -> bool:
+    """Whether ``J`` was taken (or secant-updated) at exactly this control vector and equilibrium."""
+    if J is None or J.space != space or J.x.shape != x.shape:
+        return False
+    return bool(np.abs(space.vector(J.controls) - c).max(initial=0.0) <= 1e-12 and np.abs(J.x - x).max() <= 1e-9)
+
+
 def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
-              options: FitOptions | None = None, weights=None, extra_terms=()) -> Fit:
+              options: FitOptions | None = None, weights=None, extra_terms=(),
+              jacobian: EquilibriumJacobian | None = None) -> Fit:
     """Fit one frame: the controls (in ``space``, default all activations and the jaw model's
     parameters) whose equilibrium puts the model's markers on ``targets (r, 3)`` mm (NaN rows
     are missing markers), starting from ``controls`` and its equilibrium ``x0`` (solved if None).
 
-    ``weights (r,)``: per-marker weights (default 1). Returns a :class:`Fit` with the final
-    controls, positions, marker positions and the report; the Jacobian at the result is kept
-    for the next frame."""
+    ``weights (r,)``: per-marker weights (default 1). ``jacobian``: the previous frame's
+    ``Fit.jacobian``; used when it was taken at ``controls`` and ``x0`` (else evaluated here).
+    Returns a :class:`Fit` with the final controls, positions, marker positions, the report and
+    the Jacobian at the result for the next frame."""
+    with single_blas_thread():   # vector-sized BLAS work only: threads add contention (fem.linear)
+        return _fit_frame(sim, targets, controls, x0, space, options or FitOptions(), weights, extra_terms,
+                          jacobian)
+
+
+def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian) -> Fit:
     t0 = time.perf_counter()
-    options = options or FitOptions()
     model = sim.model
     targets = np.asarray(targets, dtype=np.float64)
     if targets.shape != (model.n_markers, 3):
@@ -185,22 +279,65 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     space = space or ControlSpace.of(sim, jaw=bool(getattr(sim.jaw_model, "n_params", 0)))
     bounds = _Bounds(space, sim.jaw_model)
     rep = FitReport()
+    clock = rep.timing
     rows = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
+    noise_energy = 0.5 * options.noise ** 2 * float(w3.sum())   # the data term of a fit at the noise level
+    # A step dc moves the estimate by |J dc|_W / noise = sqrt(2 predicted) / noise standard deviations
+    # of its marker-noise covariance noise^2 (J^T W J)^-1. Stopping short of a step of k of them
+    # leaves an error of at most k on top of the noise's 1: sqrt(1 + k^2), 1.12 for k = 0.5.
+    resolution = 0.5 * (options.resolution * options.noise) ** 2
 
-    def solve(ctrl, warm):
+    def solve(ctrl, warm, tangent):
+        """Equilibrium of ``ctrl`` from ``warm``: chord iterations on ``tangent`` first, else Newton."""
+        if tangent is not None and options.chord:
+            xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, tangent, extra_terms)
+            rep.newton_iterations += its
+            rep.chord_iterations += its
+            rep.linear_solves += solves
+            if ok:
+                rep.equilibria += 1
+                return xc
+            warm = xc
         eq = sim.equilibrium(ctrl, x0=warm, extra_terms=extra_terms)
         rep.equilibria += 1
         rep.newton_iterations += eq.iterations
         rep.linear_solves += len(eq.report.linear_iterations)
-        if not eq.converged:
-            return None
-        return eq.x
+        return eq.x if eq.converged else None
+
+    def motion(x, start):
+        """Marker motion ``(k,)`` of the kept coordinates from the marker positions ``start``."""
+        return (model.marker_positions(x) - start).ravel()[rows]
 
     def objective(c, x, mu):
         r = _residual(model, x, targets, keep)
         return 0.5 * float(r @ (w3 * r)) + mu * bounds.value_grad_hess(c)[0]
 
-    x = solve(controls, x0) if x0 is None or not np.isfinite(x0).all() else np.asarray(x0, dtype=np.float64)
+    def exact_jacobian(c, x):
+        t = time.perf_counter()
+        J = equilibrium_jacobian(sim, space.apply(base, c), x, space, extra_terms=extra_terms,
+                                 linear_solver=options.linear_solver)
+        rep.jacobians += 1
+        rep.linear_solves += len(J.linear_iterations)
+        clock["jacobian"] += time.perf_counter() - t
+        return J
+
+    def linear_step(J, c, x):
+        """The schedule's step, its weight and the decrease the linear model predicts for it."""
+        t = time.perf_counter()
+        r = _residual(model, x, targets, keep)
+        Jr = J.dP[rows]
+        dc, mu, nested = schedule_penalty(r, Jr, c, bounds, options, w3)
+        rep.schedule_steps += nested
+        F = objective(c, x, mu)
+        m = r + Jr @ dc
+        predicted = F - (0.5 * float(m @ (w3 * m)) + mu * bounds.value_grad_hess(c + dc)[0])
+        slope = float((Jr.T @ (w3 * r) + mu * bounds.value_grad_hess(c)[1]) @ dc)   # d/dalpha F(c + alpha dc), 0
+        clock["algebra"] += time.perf_counter() - t
+        return dc, mu, F, predicted, slope
+
+    t = time.perf_counter()
+    x = solve(controls, x0, None) if x0 is None or not np.isfinite(x0).all() else np.asarray(x0, dtype=np.float64)
+    clock["equilibria"] += time.perf_counter() - t
     if x is None:
         raise FacesimError("fit_frame: the starting controls have no converged equilibrium")
     c = space.vector(controls)
@@ -208,67 +345,140 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     mu = 0.0
     F = objective(c, x, mu)
     rep.objective.append(F)
-    J = None
-    for _ in range(options.max_steps):
-        J = equilibrium_jacobian(sim, space.apply(base, c), x, space, extra_terms=extra_terms,
-                                 linear_solver=options.linear_solver)
-        rep.linear_solves += len(J.linear_iterations)
-        r = _residual(model, x, targets, keep)
-        dc, mu, nested = schedule_penalty(r, J.dP[rows], c, bounds, options, w3)
-        rep.schedule_steps += nested
-        F = objective(c, x, mu)   # the objective at the schedule's weight
-        # golden-section search of F(c + alpha dc) on [0, max_step], equilibria warm-started from
-        # the interpolation of the bracketing ones
-        cache = {0.0: (F, x)}
-
-        def at(alpha):
-            if alpha in cache:
-                return cache[alpha][0]
-            done = sorted(cache)
-            lo = max((s for s in done if s < alpha), default=0.0)
-            hi = min((s for s in done if s > alpha), default=None)
-            if hi is None:
-                warm = J.predict(alpha * dc)
-            else:
-                t = (alpha - lo) / (hi - lo)
-                warm = (1 - t) * cache[lo][1] + t * cache[hi][1]
-            xa = solve(space.apply(base, c + alpha * dc), warm)
-            cache[alpha] = (math.inf, None) if xa is None else (objective(c + alpha * dc, xa, mu), xa)
-            return cache[alpha][0]
-
-        a_, b_ = 0.0, options.max_step
-        at(b_)
-        x1, x2 = b_ - GOLDEN * (b_ - a_), a_ + GOLDEN * (b_ - a_)
-        f1, f2 = at(x1), at(x2)
-        while (b_ - a_) > options.golden_tolerance * options.max_step:
-            if f1 <= f2:
-                b_, x2, f2 = x2, x1, f1
-                x1 = b_ - GOLDEN * (b_ - a_)
-                f1 = at(x1)
-            else:
-                a_, x1, f1 = x1, x2, f2
-                x2 = a_ + GOLDEN * (b_ - a_)
-                f2 = at(x2)
-        alpha = min(cache, key=lambda s: cache[s][0])
-        F_new, x_new = cache[alpha]
+    P = model.marker_positions(x)
+    J = jacobian if _reusable(jacobian, space, c, x) else None
+    while rep.gn_steps < options.max_steps:
+        if J is None or J.age > options.jacobian_max_age:
+            J = exact_jacobian(c, x)
+        dc, mu, F, predicted, slope = linear_step(J, c, x)
+        if predicted <= max(options.tolerance * max(F, noise_energy), resolution) or \
+                np.abs(dc).max() < options.step_tolerance:
+            break   # converged: the next step would change the objective (or the controls) too little
+        # the full step first, its equilibrium warm-started from the first-order prediction
+        t = time.perf_counter()
+        x1 = solve(space.apply(base, c + dc), J.predict(dc), J.tangent)
+        F1 = math.inf if x1 is None else objective(c + dc, x1, mu)
+        clock["equilibria"] += time.perf_counter() - t
+        rep.ratios.append((F - F1) / predicted)
+        if options.line_search == "ratio" and F - F1 >= options.accept_ratio * predicted:
+            rep.full_steps += 1
+            t = time.perf_counter()
+            alpha, F_new, x_new = _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options,
+                                          (J.dP @ dc)[rows], functools.partial(motion, start=P), w3, J.tangent)
+            clock["line_search"] += time.perf_counter() - t
+        elif J.age > 0:   # the model of an updated Jacobian failed: evaluate it here and step again
+            J = None
+            continue
+        else:
+            t = time.perf_counter()
+            cache = {0.0: (F, x), 1.0: (F1, x1)}
+            alpha, F_new, x_new = None, math.inf, None
+            if options.line_search == "ratio" and x1 is not None and F1 - F - slope > 0 and slope < 0:
+                # the full step failed: one backtracking trial at the minimum of the parabola through
+                # F(0), F'(0) and F(1), kept on sufficient (Armijo) decrease
+                short = min(max(-slope / (2.0 * (F1 - F - slope)), 0.1), 0.9)
+                xs = solve(space.apply(base, c + short * dc), J.predict(short * dc), J.tangent)
+                Fs = math.inf if xs is None else objective(c + short * dc, xs, mu)
+                cache[short] = (Fs, xs)
+                if Fs <= F + ARMIJO * short * slope:
+                    alpha, F_new, x_new = short, Fs, xs
+            if alpha is None:   # golden section: over [0, 1] after a failed full step, else [0, max_step]
+                hi = 1.0 if options.line_search == "ratio" else options.max_step
+                alpha, F_new, x_new = _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache,
+                                                      hi)
+            clock["line_search"] += time.perf_counter() - t
         rep.gn_steps += 1
         rep.step_lengths.append(alpha)
         if alpha == 0.0 or x_new is None:
             break
+        t = time.perf_counter()
+        step = alpha * dc
+        P_new = model.marker_positions(x_new)
+        moved = (P_new - P).ravel()
+        linear = J.dP @ step
+        mismatch = float(np.linalg.norm(moved - linear)) / max(float(np.linalg.norm(linear)), 1e-300)
+        J = J.secant_update(step, x_new, moved, space.apply(base, c + step))
+        rep.secant_updates += 1
+        clock["jacobian"] += time.perf_counter() - t
         improvement = (F - F_new) / max(F, 1e-300)
-        c, x, F = c + alpha * dc, x_new, F_new
+        c, x, F, P = c + step, x_new, F_new, P_new
         rep.objective.append(F)
-        if improvement < options.tolerance or np.abs(alpha * dc).max() < options.step_tolerance:
+        if improvement < options.tolerance or np.abs(step).max() < options.step_tolerance:
             break
+        if mismatch > options.jacobian_drift:
+            J = None
     rep.converged = True
     final = space.apply(base, c)
-    P = model.marker_positions(x)
     rk = (P[keep] - targets[keep])
     rep.marker_rms = float(np.sqrt(np.mean(np.sum(rk ** 2, axis=1))))
     rep.worst_violation = bounds.violation(c)
     rep.penalty_weight = mu
     rep.seconds = time.perf_counter() - t0
     return Fit(final, x, P, rep, J)
+
+
+def _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options, linear, moved, w, tangent):
+    """Lengthen a kept full step where Gauss-Newton undershoots (muscles stiffen as they shorten,
+    flesh against bone): the markers moved only a fraction ``phi(alpha)`` of the predicted motion
+    ``linear = J dc`` (kept rows) along it. The step minimises ``|r + phi J dc|`` at ``phi = 1``, so
+    ``phi(alpha) = 1`` is solved by secant steps (at most ``EXTEND_TRIALS`` more equilibria, each
+    warm-started by extrapolating the last two), kept while the objective falls.
+    ``moved(x) (k,)``: marker motion from the start. Returns ``(alpha, F, x)``."""
+    norm = max(float(linear @ (w * linear)), 1e-300)
+    path = [(0.0, 0.0, x), (1.0, float(linear @ (w * moved(x1))) / norm, x1)]
+    best = (1.0, F1, x1)
+    for _ in range(EXTEND_TRIALS):
+        (a0, p0, xa0), (a1, p1, xa1) = path[-2], path[-1]
+        if p1 >= 1.0 / EXTRAPOLATE_ABOVE or p1 <= p0:
+            break
+        a2 = min(a1 + (1.0 - p1) * (a1 - a0) / (p1 - p0), options.max_step)
+        if a2 <= a1 * EXTRAPOLATE_ABOVE:
+            break
+        x2 = solve(space.apply(base, c + a2 * dc), xa1 + (a2 - a1) / (a1 - a0) * (xa1 - xa0), tangent)
+        F2 = math.inf if x2 is None else objective(c + a2 * dc, x2, mu)
+        if F2 >= best[1]:
+            break
+        best = (a2, F2, x2)
+        path.append((a2, float(linear @ (w * moved(x2))) / norm, x2))
+    return best
+
+
+def _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache, hi):
+    """Golden-section search of ``F(c + alpha dc)`` on ``[0, hi]`` down to a bracket of
+    ``golden_tolerance * hi``; ``cache`` maps the step lengths already solved to ``(F, x)``. Each
+    trial equilibrium is warm-started from the interpolation of the bracketing ones (the
+    first-order prediction beyond the last). Returns ``(alpha, F, x)`` of the best point."""
+
+    def at(alpha):
+        if alpha in cache:
+            return cache[alpha][0]
+        done = [s for s in sorted(cache) if cache[s][1] is not None]   # failed trials bracket nothing
+        lo = max((s for s in done if s < alpha), default=0.0)
+        hi = min((s for s in done if s > alpha), default=None)
+        if hi is None:
+            warm = J.predict(alpha * dc)
+        else:
+            t = (alpha - lo) / (hi - lo)
+            warm = (1 - t) * cache[lo][1] + t * cache[hi][1]
+        xa = solve(space.apply(base, c + alpha * dc), warm, J.tangent)
+        cache[alpha] = (math.inf, None) if xa is None else (objective(c + alpha * dc, xa, mu), xa)
+        return cache[alpha][0]
+
+    a_, b_ = 0.0, hi
+    at(b_)
+    x1, x2 = b_ - GOLDEN * (b_ - a_), a_ + GOLDEN * (b_ - a_)
+    f1, f2 = at(x1), at(x2)
+    while (b_ - a_) > options.golden_tolerance * hi:
+        if f1 <= f2:
+            b_, x2, f2 = x2, x1, f1
+            x1 = b_ - GOLDEN * (b_ - a_)
+            f1 = at(x1)
+        else:
+            a_, x1, f1 = x1, x2, f2
+            x2 = a_ + GOLDEN * (b_ - a_)
+            f2 = at(x2)
+    alpha = min(cache, key=lambda s: cache[s][0])
+    return alpha, cache[alpha][0], cache[alpha][1]
 
 
 __all__ = ["FitOptions", "FitReport", "Fit", "fit_frame", "schedule_penalty"]

@@ -16,19 +16,25 @@ All columns are solved against one factorisation (direct) or one AMG hierarchy (
 Attached nodes move with their bone analytically; the head (optional) moves everything rigidly
 (no solve: the energy is invariant under a rigid motion of the whole face). Markers are
 ``P = sum b_k x_k + offset * n(x)``; :func:`marker_jacobian` is their exact derivative.
+
+Reuse between solves (the inverse solver's speed, issue 5): a direct Jacobian keeps the
+factorised tangent, and :func:`near_equilibrium` solves the equilibrium of nearby controls by
+chord iterations against it (one gradient and one pair of triangular solves per iteration, no
+assembly); :meth:`EquilibriumJacobian.secant_update` moves a Jacobian to a new equilibrium with a
+rank-one (Broyden) correction that makes it exact along the step just taken.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
 
 from facesim.controls import Controls
 from facesim.errors import FacesimError
-from facesim.fem.linear import make_linear_solver
+from facesim.fem.linear import make_linear_solver, single_blas_thread
 from facesim.fem.newton import Problem
 from facesim.model import FaceModel
 
@@ -162,14 +168,51 @@ class EquilibriumJacobian:
     dP: np.ndarray
     seconds: dict = field(default_factory=dict)
     linear_iterations: list = field(default_factory=list)
+    tangent: object = None   # factorised tangent of the last exact evaluation (direct solver), else None
+    age: int = 0             # secant updates since the last exact evaluation (0: exact)
+
+    def __getstate__(self):
+        # a factorisation does not pickle (SuperLU): a Jacobian sent to another process (a dask
+        # worker) travels without it, and its next equilibria use Newton
+        return {**self.__dict__, "tangent": None}
 
     def predict(self, dc) -> np.ndarray:
         """First-order positions ``(n, 3)`` for the control change ``dc (nc,)``: a warm start."""
         return self.x + (self.dx @ np.asarray(dc, dtype=np.float64)).reshape(-1, 3)
 
+    def secant_update(self, dc, x, dP_actual, controls: Controls) -> EquilibriumJacobian:
+        """The Jacobian moved to the equilibrium ``x (n, 3)`` of ``controls``, reached by the control
+        step ``dc (nc,)`` along which the markers moved by ``dP_actual (3r,)``: Broyden's rank-one
+        update ``D + (d_actual - D dc) dc^T / |dc|^2`` of ``dx`` and ``dP``, exact along ``dc`` and
+        unchanged across it. ``age`` counts the updates since the last exact evaluation."""
+        dc = np.asarray(dc, dtype=np.float64)
+        x = np.asarray(x, dtype=np.float64)
+        ss = float(dc @ dc)
+        if ss == 0.0:
+            return replace(self, x=x, controls=controls)
+        v = dc / ss
+        dx = self.dx + np.outer((x - self.x).ravel() - self.dx @ dc, v)
+        dP = self.dP + np.outer(np.asarray(dP_actual, dtype=np.float64) - self.dP @ dc, v)
+        return replace(self, controls=controls, x=x, dx=dx, dP=dP, seconds={}, linear_iterations=[],
+                       age=self.age + 1)
+
 
 def _bone_step(space: ControlSpace, k: int) -> float:
     return 1e-5   # rad or mm: node motion ~1e-3 mm, far above round-off, O(h^2) error negligible
+
+
+def _jaw_side_terms(sim) -> tuple:
+    """The simulator's terms with the flesh restricted to the tets that touch a jaw node: moving
+    the jaw changes only their forces, so the bone columns' central differences need no more
+    (the flesh gradient is most of a Jacobian's right-hand-side cost otherwise)."""
+    from facesim.fem.terms import ElasticTerm
+
+    e = sim.elastic
+    touching = np.zeros(sim.model.n_nodes, bool)
+    touching[sim.model.jaw_nodes] = True
+    near = e.elems[touching[e.rest.tets[e.elems]].any(axis=1)]
+    flesh = ElasticTerm(e.rest, e.c10, e.c01, e.kappa, elems=near, volumetric=sim.options.volumetric, clamp=e.clamp)
+    return tuple(flesh if t is e else t for t in sim.terms)
 
 
 def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None = None, extra_terms=(),
@@ -183,6 +226,11 @@ def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None 
     ``"direct"`` or ``"amg"`` (default: direct below ``DIRECT_BELOW`` unknowns -- one sparse LU
     serves all columns and beats ~20 CG iterations per column there -- else AMG).
     ``rtol``: CG tolerance per column."""
+    with single_blas_thread():   # BLAS work here is vector-sized: threads only add contention
+        return _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, terms_for, rtol)
+
+
+def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, terms_for, rtol):
     t0 = time.perf_counter()
     model = sim.model
     space = space or ControlSpace.of(sim, jaw=bool(getattr(sim.jaw_model, "n_params", 0)))
@@ -215,6 +263,7 @@ def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None 
         Hc = np.eye(4) if controls.head is None else controls.head
         dT = sim.jaw_model.jacobian(q)                            # (4, 4, n_jaw)
         Xj = model.X[model.jaw_nodes]
+        bone_terms = _jaw_side_terms(sim)
         for k in range(space.n_jaw):
             h = _bone_step(space, k)
             g = []
@@ -223,7 +272,7 @@ def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None 
                 qk[k] += sgn * h
                 ck = Controls(controls.a, qk, controls.head)
                 xk = sim.attached_positions(ck, x)
-                g.append(Problem(sim.terms + extras(ck), system, xk, controls.a).energy_and_gradient(xk)[1])
+                g.append(Problem(bone_terms + extras(ck), system, xk, controls.a).energy_and_gradient(xk)[1])
             rhs[:, sj.start + k] = -(g[0] - g[1]) / (2.0 * h)
             dTk = Hc @ dT[:, :, k]
             dx.reshape(-1, 3, nc)[model.jaw_nodes, :, sj.start + k] = Xj @ dTk[:3, :3].T + dTk[:3, 3]
@@ -250,7 +299,75 @@ def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None 
     return EquilibriumJacobian(space, controls, x, dx, dP,
                                seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
                                         "total": t2 - t0},
-                               linear_iterations=list(solver.stats.iterations[n_before:]))
+                               linear_iterations=list(solver.stats.iterations[n_before:]),
+                               tangent=getattr(solver, "lu", None))
 
 
-__all__ = ["ControlSpace", "EquilibriumJacobian", "equilibrium_jacobian", "marker_jacobian", "head_increment"]
+CHORD_LOOKAHEAD = 3   # chord iterations worth one Newton step (assembly + a few preconditioned CG iterations)
+
+
+def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_iterations: int = 8,
+                     contraction: float = 0.5, chord_rate: float = 0.5):
+    """Equilibrium of ``controls`` from ``x0 (n, 3)`` (e.g. :meth:`EquilibriumJacobian.predict`)
+    with the factorised tangent ``tangent`` of a nearby equilibrium (``EquilibriumJacobian.tangent``)
+    in place of an AMG hierarchy or a fresh factorisation.
+
+    Chord iterations ``u <- u - K0^-1 g(u)`` (a gradient and two triangular solves each, no
+    assembly) while they shrink the residual by ``chord_rate`` or better and ``CHORD_LOOKAHEAD``
+    more at that rate would converge; then Newton steps with the true tangent at ``u``, solved by
+    CG preconditioned with ``K0`` (a few iterations: the two tangents are close).
+
+    Converged when ``|g|`` meets the simulator's Newton tolerance (``rtol`` times the cold-start
+    force of :meth:`FaceSimulator.force_scale`, plus ``atol``), as :meth:`FaceSimulator.equilibrium`
+    requires. Gives up (``converged=False``) when a chord iteration does not shrink the residual,
+    a Newton step does not shrink it by ``contraction`` or CG fails -- the tangent here is then too
+    far from ``K0`` -- or after ``max_iterations``. Returns ``(x (n, 3), iterations, linear solves,
+    converged)``; ``x`` is the iterate of least residual, a warm start for Newton if not converged."""
+    import scipy.sparse.linalg as spla
+
+    teeth = sim.teeth_term(controls)
+    extras = tuple(extra_terms) + ((teeth,) if teeth is not None else ())
+    system = sim.system
+    solves = 0
+    with single_blas_thread():
+        prob = Problem(sim.terms + extras, system, sim.attached_positions(controls, x0), controls.a)
+        newton = sim.options.newton
+        tol = newton.rtol * sim.force_scale(controls, extras) + newton.atol
+        u = prob.x_fixed[system.active].ravel().copy()
+        x = best = prob.x_fixed
+        previous, chord = np.inf, True
+        M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=tangent.solve, dtype=np.float64)
+        cg_iterations = [0]
+
+        def count(_):
+            cg_iterations[0] += 1
+
+        for it in range(max_iterations + 1):
+            g = prob.energy_and_gradient(x)[1]
+            res = float(np.linalg.norm(g))
+            if res <= tol:
+                return x, it, solves, True
+            rate = res / previous
+            if it == max_iterations or not np.isfinite(res) or rate > (1.0 if chord else contraction):
+                return best, it, solves, False
+            best, previous = x, res
+            # stay with chord iterations while a few more of them at this rate would converge
+            chord = chord and rate <= chord_rate and res * rate ** CHORD_LOOKAHEAD <= tol
+            if chord:
+                du = tangent.solve(-g)
+                solves += 1
+            else:
+                before = cg_iterations[0]
+                du, info = spla.cg(prob.hessian(x, project=False), -g, rtol=min(1e-2, 0.1 * tol / res), atol=0.0,
+                                   maxiter=50, M=M, callback=count)
+                solves += cg_iterations[0] - before
+                if info != 0:
+                    return best, it, solves, False
+            du[~system.free_dof] = 0.0
+            u += du
+            x = prob.positions(u)
+    return best, max_iterations, solves, False   # not reached: the loop returns
+
+
+__all__ = ["ControlSpace", "EquilibriumJacobian", "equilibrium_jacobian", "marker_jacobian", "head_increment",
+           "near_equilibrium"]

@@ -1,27 +1,57 @@
 """Sequences: fit every frame of a marker capture, warm-started from the previous one.
 
-``track(sim, data, out_dir)`` maps the capture's markers onto the model's by name, stabilises the
-head (rigid Procrustes of the head markers onto the model's rest head markers) or leaves it to
-the solver, then fits frame after frame with :func:`~facesim.inverse.gauss_newton.fit_frame`,
-each warm-started from the previous frame's controls and equilibrium. Missing markers (NaN) are
-dropped per frame; after a fit, markers whose residual is far above the frame's robust spread
-(``outlier_factor`` x 1.4826 MAD, at least ``outlier_floor`` mm) are reported as outliers and,
-with ``robust``, the frame is refitted without them.
+``track(sim, frames, P, out_dir)`` fits the capture's frames (already in the model's marker
+order) with :func:`~facesim.inverse.gauss_newton.fit_frame`, each warm-started from the previous
+frame's controls and equilibrium, after stabilising the head (rigid Procrustes of the head markers
+onto the model's rest head markers) or leaving it as captured.
 
-Files in ``out_dir`` (append-only logs, one complete line per frame, flushed; ``resume`` keeps
-the frames already written and continues after them):
+Per frame (:func:`fit_markers`): missing markers (NaN) are dropped; the marker distance is plain
+least squares (``loss="l2"``) or a robust loss on each marker's distance ``r`` (mm), minimised by
+iteratively reweighted Gauss-Newton -- each pass a ``fit_frame`` with per-marker weights
+``w = rho'(r) / r`` from the previous pass's residuals:
+
+* ``huber``  ``rho = r^2/2`` for ``r <= s``, ``s r - s^2/2`` beyond: ``w = min(1, s / r)``;
+* ``cauchy`` ``rho = s^2/2 log(1 + (r/s)^2)``: ``w = 1 / (1 + (r/s)^2)``;
+
+``s`` the loss scale (default 3x the marker noise: the 3-D distance of a marker with per-axis
+noise ``sigma`` stays below ``2.8 sigma`` 95% of the time). After the fit, markers whose residual
+is far above the frame's robust spread (``outlier_factor`` x 1.4826 MAD, at least
+``outlier_floor`` mm) are reported as outliers and, with ``robust``, the frame is refitted without
+them.
+
+Chunks: with ``chunk_size`` the sequence is split into chunks of that many frames, each starting
+cold (from ``start``, default rest) -- so chunks are independent and can be solved in parallel on
+a ``dask.distributed`` cluster (``client``; :func:`dask_client` makes one). Every task solves one
+frame, chained on the previous frame of its chunk so the worker holding that frame's equilibrium
+warm-starts from it; workers build their simulator from a :class:`SimulatorSpec` (model file and
+options, cached per worker process). The client writes every frame as it arrives.
+
+Files in ``out_dir`` (append-only logs, one complete line per frame, flushed and synced;
+``resume`` keeps the frames already written and solves only the others):
 
 * ``activations.csv`` ``frame,<muscle>,...``; ``jaw.csv`` ``frame,<jaw parameter>,...``;
 * ``residuals.csv`` ``frame,rms,<marker>,...`` (mm, NaN for missing markers);
-* ``frames.csv`` the solver log per frame; ``report.json`` the summary (rewritten per frame).
+* ``frames.csv`` the solver log per frame (counts summed over the frame's fits);
+* ``report.json`` the summary (rewritten when the run ends, also when interrupted);
+* ``chunks/`` while frames finish out of order: the four logs of the frames solved after a
+  still unfinished one. The files above always hold the longest finished prefix of the sequence,
+  in frame order; a frame moves there as soon as every frame before it is written, and
+  ``chunks/`` is removed when the run completes.
 """
 
 from __future__ import annotations
 
 import csv
+import functools
+import hashlib
 import io
 import json
+import math
+import os
+import shutil
 import time
+import uuid
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,31 +60,135 @@ import numpy as np
 from facesim._files import atomic_write
 from facesim.controls import Controls
 from facesim.errors import FacesimError
-from facesim.inverse.gauss_newton import FitOptions, fit_frame
+from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+from facesim.inverse.gauss_newton import Fit, FitOptions, fit_frame
 from facesim.inverse.jacobian import ControlSpace
 from facesim.kinematics.frames import rigid_fit
 
+LOSSES = ("l2", "huber", "cauchy")
 LOG_COLUMNS = ("frame", "gn_steps", "equilibria", "newton_iterations", "linear_solves", "marker_rms",
-               "worst_violation", "markers_used", "outliers", "seconds")
+               "worst_violation", "markers_used", "outliers", "fits", "seconds")
+LOGS = ("activations", "jaw", "residuals", "frames")
+CHUNKS = "chunks"
 
 
 @dataclass(frozen=True)
 class TrackOptions:
     """fit : per-frame :class:`FitOptions`; head : ``"procrustes"`` (stabilise with the head
     markers) or ``"none"`` (the capture is already in the model's head frame); outlier_factor,
-    outlier_floor : outlier test; robust : refit frames without their outliers."""
+    outlier_floor (mm) : outlier test; robust : refit frames without their outliers; loss :
+    ``"l2"``, ``"huber"`` or ``"cauchy"`` on each marker's distance; loss_scale : its scale, mm
+    (None: 3x ``fit.noise``); irls_steps : most reweighted passes of a robust loss; chunk_size :
+    frames per independently (cold-) started chunk (None: one chunk, or with a cluster the frames
+    divided evenly among its workers)."""
 
     fit: FitOptions = FitOptions()
     head: str = "procrustes"
     outlier_factor: float = 5.0
     outlier_floor: float = 2.0
     robust: bool = True
+    loss: str = "l2"
+    loss_scale: float | None = None
+    irls_steps: int = 5
+    chunk_size: int | None = None
 
     def __post_init__(self):
         if self.head not in ("procrustes", "none"):
             raise FacesimError(f"head: expected 'procrustes' or 'none', got {self.head!r}")
+        if self.loss not in LOSSES:
+            raise FacesimError(f"loss: expected one of {', '.join(LOSSES)}, got {self.loss!r}")
+        if self.loss_scale is not None and not self.loss_scale > 0:
+            raise FacesimError(f"loss scale: expected a distance > 0 mm, got {self.loss_scale}")
+        if self.irls_steps < 1:
+            raise FacesimError(f"irls_steps: expected >= 1, got {self.irls_steps}")
+        if self.chunk_size is not None and self.chunk_size < 1:
+            raise FacesimError(f"chunk size: expected >= 1 frames, got {self.chunk_size}")
+
+    @property
+    def scale(self) -> float:
+        """The robust loss scale, mm."""
+        return self.loss_scale if self.loss_scale is not None else 3.0 * self.fit.noise
 
 
+# ------------------------------------------------------------------ the simulator, on any worker
+@dataclass(frozen=True)
+class SimulatorSpec:
+    """What a worker process needs to build the simulator of a run: the model file (absolute path
+    as the workers see it, and the SHA-256 of its bytes, checked there so every worker solves the
+    client's model), the equilibrium options and the jaw model name
+    (:func:`facesim.session.make_jaw_model`). Small and picklable."""
+
+    model: str
+    sha256: str
+    options: EquilibriumOptions = EquilibriumOptions()
+    jaw_model: str = "sliding-condyle"
+
+    @staticmethod
+    def of(path, options: EquilibriumOptions | None = None, jaw_model: str = "sliding-condyle") -> SimulatorSpec:
+        path = Path(path).resolve()
+        if not path.is_file():
+            raise FacesimError(f"{path}: no such model file")
+        kind, sep, rig = jaw_model.partition(":")
+        if sep:   # rig files too must resolve the same on the workers
+            jaw_model = f"{kind}:{Path(rig).resolve()}"
+        return SimulatorSpec(str(path), _sha256(path), options or EquilibriumOptions(), jaw_model)
+
+    def build(self) -> FaceSimulator:
+        """The simulator (built once per process and spec, then shared: it is never mutated)."""
+        return _simulator(self)
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+@functools.lru_cache(maxsize=2)
+def _simulator(spec: SimulatorSpec) -> FaceSimulator:
+    from facesim.model import load_model
+    from facesim.session import make_jaw_model
+
+    path = Path(spec.model)
+    if not path.is_file():
+        raise FacesimError(f"{path}: no such model file on this worker (workers must see the model at the "
+                           "client's path)")
+    if _sha256(path) != spec.sha256:
+        raise FacesimError(f"{path}: the model file on this worker differs from the client's")
+    model = load_model(path)
+    return FaceSimulator(model, spec.options, jaw_model=make_jaw_model(model, spec.jaw_model, model_path=path))
+
+
+@contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None):
+    """A ``distributed.Client``: on a new LocalCluster of ``workers`` processes (one thread each,
+    numba's threads shared out among them) or connected to the scheduler at ``scheduler``
+    (e.g. ``tcp://host:8786``). Closed, with its cluster, on leaving the block."""
+    if (workers is None) == (scheduler is None):
+        raise FacesimError("parallel tracking: give either a number of workers or a scheduler address")
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise FacesimError("parallel tracking needs dask.distributed: pip install 'dask[distributed]'") from None
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise FacesimError(f"cannot reach the dask scheduler at {scheduler} ({exc})") from None
+        with client:
+            yield client
+        return
+    if workers < 1:
+        raise FacesimError(f"workers: expected >= 1, got {workers}")
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                      env={"NUMBA_NUM_THREADS": str(threads)}) as cluster, Client(cluster) as client:
+        yield client
+
+
+# ------------------------------------------------------------------ markers
 def match_markers(model_names, data_names) -> tuple[np.ndarray, list[str], list[str]]:
     """Index of each model marker in the capture (-1 if absent), the capture's names the model
     does not have and the model's names the capture does not have. Names match exactly, then
@@ -87,127 +221,93 @@ def stabilise(model, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out, Ts
 
 
-def _line(values) -> str:
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerow(values)
-    return buf.getvalue()
+# ------------------------------------------------------------------ one frame
+def loss_weights(r, loss: str, scale: float) -> np.ndarray:
+    """Reweighting ``w = rho'(r) / r`` of the robust ``loss`` (see the module doc) for marker
+    distances ``r (k,)`` mm with scale ``scale`` mm; 1 for missing (NaN) markers."""
+    r = np.nan_to_num(np.asarray(r, dtype=np.float64), nan=0.0)
+    if loss == "l2":
+        return np.ones_like(r)
+    if loss == "huber":
+        return np.minimum(1.0, scale / np.maximum(r, 1e-300))
+    if loss == "cauchy":
+        return 1.0 / (1.0 + (r / scale) ** 2)
+    raise FacesimError(f"loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
 
 
-class _Log:
-    def __init__(self, path: Path, header: list[str], resume: bool):
-        self.path = path
-        self.header = _line(header)
-        kept = []
-        if resume and path.is_file():
-            lines = path.read_text().splitlines(keepends=True)
-            if lines and lines[0] == self.header:
-                kept = [ln for ln in lines[1:] if ln.endswith("\n") and len(next(csv.reader([ln]))) == len(header)]
-        text = self.header + "".join(kept)
-        atomic_write(path, lambda tmp: tmp.write_text(text))
-        self.rows = {int(next(csv.reader([ln]))[0]): ln for ln in kept}
-        self.file = open(path, "a", encoding="utf-8")  # noqa: SIM115
-
-    def add(self, values) -> None:
-        import os
-
-        self.file.write(_line(values))
-        self.file.flush()
-        os.fsync(self.file.fileno())
-
-    def close(self):
-        self.file.close()
-
-
-def _fmt(v) -> str:
-    return "nan" if not np.isfinite(v) else f"{v:.6g}"
-
-
-def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None = None, start: Controls | None = None,
-          resume: bool = False, progress: bool = True) -> dict:
-    """Fit every frame of ``P (F, r, 3)`` (mm, the model's marker order, NaN missing; frame numbers
-    ``frames (F,)``) and write the results into ``out_dir`` (see the module doc). ``start``:
-    controls of the first frame's starting guess (default rest). Returns the summary."""
-    from tqdm import tqdm
-
+def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
+                options: TrackOptions | None = None, jacobian=None) -> tuple[Fit, list[int], list[Fit]]:
+    """One frame as the tracker fits it: ``targets (r, 3)`` mm (NaN missing) under ``options.loss``
+    (reweighted passes of :func:`fit_frame` from ``controls`` / ``x0``), the outlier test and, with
+    ``options.robust``, the refit without the outliers. Returns the final fit, the outliers'
+    marker indices and every fit made (for the frame's solver counts). ``jacobian``: the previous
+    frame's ``Fit.jacobian`` (reused by :func:`fit_frame` while it stays accurate; each pass hands
+    its own on to the next)."""
     options = options or TrackOptions()
+    fits: list[Fit] = []
+
+    def solve(target, c, x, J):
+        fit = fit_frame(sim, target, c, x, space, options.fit, jacobian=J)
+        fits.append(fit)
+        w = np.ones(len(target))
+        for _ in range(options.irls_steps if options.loss != "l2" else 0):
+            w_new = loss_weights(np.linalg.norm(fit.markers - target, axis=1), options.loss, options.scale)
+            if np.max(np.abs(w_new - w) / w_new) < 0.02:   # the weights settled: so has the reweighted fit
+                break
+            w = w_new
+            fit = fit_frame(sim, target, fit.controls, fit.x, space, options.fit, weights=w, jacobian=fit.jacobian)
+            fits.append(fit)
+        return fit
+
+    targets = np.asarray(targets, dtype=np.float64)
+    fit = solve(targets, controls, x0, jacobian)
+    outliers = _outliers(fit.markers, targets, options)
+    if outliers and options.robust:
+        cleaned = targets.copy()
+        cleaned[outliers] = np.nan
+        fit = solve(cleaned, fit.controls, fit.x, fit.jacobian)
+    return fit, outliers, fits
+
+
+@dataclass(frozen=True)
+class _Solved:
+    """One solved frame as the client needs it: its line in each of :data:`LOGS` and the summary."""
+
+    index: int
+    lines: tuple[str, ...]
+    gn_steps: int
+    rms: float
+    outliers: tuple[str, ...]
+
+
+def _solve_frame(sim, space, options, target, k: int, i: int, controls, x, jacobian=None):
+    """Fit frame ``k`` (position ``i``); returns the :class:`_Solved` and the state for the next
+    frame (controls, equilibrium, Jacobian)."""
     model = sim.model
-    P = np.asarray(P, dtype=np.float64)
-    frames = np.asarray(frames, dtype=np.int64)
-    if P.shape[1:] != (model.n_markers, 3) or len(frames) != len(P):
-        raise FacesimError(f"markers: expected ({len(frames)}, {model.n_markers}, 3) positions, got {P.shape}")
-    if options.head == "procrustes":
-        P, _ = stabilise(model, P)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    space = ControlSpace.of(sim, jaw=bool(getattr(sim.jaw_model, "n_params", 0)))
-    jaw_names = list(getattr(sim.jaw_model, "param_names", [f"q{k}" for k in range(space.n_jaw)]))
-    if getattr(sim.jaw_model, "name", "") == "sliding-condyle":
-        jaw_names = ["opening", "right_slide", "left_slide"]
-    logs = {
-        "activations": _Log(out / "activations.csv", ["frame", *model.muscles.names], resume),
-        "jaw": _Log(out / "jaw.csv", ["frame", *jaw_names], resume),
-        "residuals": _Log(out / "residuals.csv", ["frame", "rms", *model.markers.names], resume),
-        "frames": _Log(out / "frames.csv", list(LOG_COLUMNS), resume),
-    }
-    done = set.intersection(*(set(log.rows) for log in logs.values()))
-    n_done = 0
-    while n_done < len(frames) and int(frames[n_done]) in done:
-        n_done += 1
-    controls = start or Controls(np.zeros(model.n_muscles), jaw=_rest_jaw(space))
-    x = None
-    if n_done:   # warm start from the last written frame's controls
-        last = int(frames[n_done - 1])
-        a = np.array([float(v) for v in next(csv.reader([logs["activations"].rows[last]]))[1:]])
-        q = np.array([float(v) for v in next(csv.reader([logs["jaw"].rows[last]]))[1:]])
-        controls = Controls(a, jaw=q if len(q) else None)
-    summary = {"frames": len(frames), "reused_frames": n_done, "outliers": {}, "status": "running"}
-    t_start = time.perf_counter()
-    rows = []
-    try:
-        with tqdm(total=len(frames), initial=n_done, desc="solve-mocap", unit="frame", disable=not progress) as bar:
-            for i in range(n_done, len(frames)):
-                k = int(frames[i])
-                target = P[i]
-                fit = fit_frame(sim, target, controls, x, space, options.fit)
-                outliers = _outliers(fit.markers, target, options)
-                if outliers and options.robust:
-                    cleaned = target.copy()
-                    cleaned[outliers] = np.nan
-                    fit = fit_frame(sim, cleaned, fit.controls, fit.x, space, options.fit)
-                controls, x = fit.controls, fit.x
-                r = np.linalg.norm(fit.markers - target, axis=1)
-                rep = fit.report
-                logs["activations"].add([k, *map(_fmt, controls.a)])
-                logs["jaw"].add([k, *map(_fmt, np.atleast_1d(controls.jaw) if space.n_jaw else [])])
-                logs["residuals"].add([k, _fmt(rep.marker_rms), *map(_fmt, r)])
-                used = int(np.isfinite(target).all(axis=1).sum()) - (len(outliers) if options.robust else 0)
-                logs["frames"].add([k, rep.gn_steps, rep.equilibria, rep.newton_iterations, rep.linear_solves,
-                                    _fmt(rep.marker_rms), _fmt(rep.worst_violation), used, len(outliers),
-                                    f"{rep.seconds:.3f}"])
-                if outliers:
-                    summary["outliers"][str(k)] = [model.markers.names[j] for j in outliers]
-                rows.append(rep)
-                bar.set_postfix(rms=f"{rep.marker_rms:.2f}", steps=rep.gn_steps, refresh=False)
-                bar.update(1)
-        summary["status"] = "complete"
-    except BaseException as exc:
-        summary["status"] = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed: {type(exc).__name__}"
-        raise
-    finally:
-        for log in logs.values():
-            log.close()
-        summary.update({
-            "solved_frames": len(rows), "seconds": round(time.perf_counter() - t_start, 3),
-            "gn_steps": [r.gn_steps for r in rows], "marker_rms": [round(r.marker_rms, 4) for r in rows],
-        })
-        atomic_write(out / "report.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
-    return summary
+    fit, outliers, fits = fit_markers(sim, target, controls, x, space, options, jacobian)
+    r = np.linalg.norm(fit.markers - target, axis=1)
+    rep = fit.report
+    total = {name: sum(getattr(f.report, name) for f in fits)
+             for name in ("gn_steps", "equilibria", "newton_iterations", "linear_solves", "seconds")}
+    used = int(np.isfinite(target).all(axis=1).sum()) - (len(outliers) if options.robust else 0)
+    jaw = np.atleast_1d(fit.controls.jaw) if space.n_jaw else []
+    lines = (
+        _line([k, *map(_fmt, fit.controls.a)]),
+        _line([k, *map(_fmt, jaw)]),
+        _line([k, _fmt(rep.marker_rms), *map(_fmt, r)]),
+        _line([k, total["gn_steps"], total["equilibria"], total["newton_iterations"], total["linear_solves"],
+               _fmt(rep.marker_rms), _fmt(rep.worst_violation), used, len(outliers), len(fits),
+               f"{total['seconds']:.3f}"]),
+    )
+    solved = _Solved(i, lines, total["gn_steps"], rep.marker_rms, tuple(model.markers.names[j] for j in outliers))
+    return solved, fit.controls, fit.x, fit.jacobian
 
 
-def _rest_jaw(space: ControlSpace):
-    if not space.n_jaw:
-        return None
-    return np.zeros(space.n_jaw) if space.jaw_rest is None else np.array(space.jaw_rest)
+def _solve_task(spec: SimulatorSpec, space, options, target, k: int, i: int, state):
+    """A worker's task: frame ``k`` from ``state = (_, controls, x, jacobian)`` of the frame before
+    it (a Jacobian that crossed processes lost its factorisation; fit_frame copes)."""
+    _, controls, x, jacobian = state
+    return _solve_frame(spec.build(), space, options, target, k, i, controls, x, jacobian)
 
 
 def _outliers(P, target, options: TrackOptions) -> list[int]:
@@ -221,4 +321,256 @@ def _outliers(P, target, options: TrackOptions) -> list[int]:
     return [int(j) for j in np.flatnonzero(ok & (r > limit))]
 
 
-__all__ = ["TrackOptions", "match_markers", "stabilise", "track"]
+# ------------------------------------------------------------------ files
+def _line(values) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow(values)
+    return buf.getvalue()
+
+
+def _fmt(v) -> str:
+    return "nan" if not np.isfinite(v) else f"{v:.6g}"
+
+
+class _Outputs:
+    """The four logs of a run (see the module doc): ``OUT/<log>.csv`` hold the longest finished
+    prefix of the sequence in frame order, ``OUT/chunks/<log>.csv`` the frames finished after a
+    gap. ``done`` maps each finished frame number to its lines."""
+
+    def __init__(self, out: Path, headers: dict[str, list[str]], frames, resume: bool):
+        self.out = out
+        self.frames = [int(k) for k in frames]
+        self.headers = {name: _line(headers[name]) for name in LOGS}
+        self.done: dict[int, tuple[str, ...]] = {}
+        if resume:
+            for folder in (out / CHUNKS, out):   # the merged files' lines win
+                self.done.update(self._read(folder))
+        wanted = set(self.frames)
+        self.done = {k: v for k, v in self.done.items() if k in wanted}
+        self.n_merged = 0
+        while self.n_merged < len(self.frames) and self.frames[self.n_merged] in self.done:
+            self.n_merged += 1
+        ahead = [k for k in self.frames[self.n_merged:] if k in self.done]
+        self.merged = self._open(out, self.frames[:self.n_merged])
+        self.ahead = None
+        if ahead:
+            self.ahead = self._open(out / CHUNKS, ahead)
+        else:
+            shutil.rmtree(out / CHUNKS, ignore_errors=True)
+
+    def _read(self, folder: Path) -> dict[int, tuple[str, ...]]:
+        """Frames with a complete line in all four logs of ``folder`` (matching headers)."""
+        rows = []
+        for name in LOGS:
+            path = folder / f"{name}.csv"
+            lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
+            if not lines or lines[0] != self.headers[name]:
+                return {}
+            width = len(next(csv.reader([self.headers[name]])))
+            found = {}
+            for ln in lines[1:]:
+                fields = next(csv.reader([ln]), [])
+                if ln.endswith("\n") and len(fields) == width:
+                    try:
+                        found[int(fields[0])] = ln
+                    except ValueError:
+                        continue
+            rows.append(found)
+        common = set.intersection(*(set(r) for r in rows))
+        return {k: tuple(r[k] for r in rows) for k in common}
+
+    def _open(self, folder: Path, frames) -> dict:
+        files = {}
+        for j, name in enumerate(LOGS):
+            text = self.headers[name] + "".join(self.done[k][j] for k in frames)
+            path = folder / f"{name}.csv"
+            atomic_write(path, lambda tmp, text=text: tmp.write_text(text))
+            files[name] = open(path, "a", encoding="utf-8")  # noqa: SIM115
+        return files
+
+    @staticmethod
+    def _write(files: dict, lines) -> None:
+        for name, ln in zip(LOGS, lines):
+            fh = files[name]
+            fh.write(ln)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    def add(self, i: int, lines) -> None:
+        """Write frame ``frames[i]``: into the merged logs if every frame before it is written
+        (then also the frames after it that were waiting), else into ``chunks/``."""
+        k = self.frames[i]
+        self.done[k] = tuple(lines)
+        if i != self.n_merged:
+            if self.ahead is None:
+                self.ahead = self._open(self.out / CHUNKS, [])
+            self._write(self.ahead, lines)
+            return
+        while self.n_merged < len(self.frames) and self.frames[self.n_merged] in self.done:
+            self._write(self.merged, self.done[self.frames[self.n_merged]])
+            self.n_merged += 1
+
+    def close(self) -> None:
+        for files in (self.merged, self.ahead or {}):
+            for fh in files.values():
+                fh.close()
+        if self.n_merged == len(self.frames):
+            shutil.rmtree(self.out / CHUNKS, ignore_errors=True)
+
+    def controls(self, k: int, space: ControlSpace) -> Controls:
+        """The controls written for frame ``k``."""
+        a = np.array([float(v) for v in next(csv.reader([self.done[k][0]]))[1:]])
+        q = np.array([float(v) for v in next(csv.reader([self.done[k][1]]))[1:]])
+        return Controls(a, jaw=q if space.n_jaw else None)
+
+
+# ------------------------------------------------------------------ sequences
+def _runs(n: int, chunk: int, done) -> list[tuple[int, int, bool]]:
+    """The unfinished frames as runs ``(first, stop, warm)`` of positions inside one chunk;
+    ``warm``: the frame before the run is in the same chunk (and finished: it starts the run)."""
+    runs = []
+    for lo in range(0, n, chunk):
+        hi = min(lo + chunk, n)
+        i = lo
+        while i < hi:
+            if done[i]:
+                i += 1
+                continue
+            j = i
+            while j < hi and not done[j]:
+                j += 1
+            runs.append((i, j, i > lo))
+            i = j
+    return runs
+
+
+def _solve_here(sim, space, options, frames, P, runs, starts):
+    for (first, stop, _), controls in zip(runs, starts):
+        x = J = None
+        for i in range(first, stop):
+            solved, controls, x, J = _solve_frame(sim, space, options, P[i], int(frames[i]), i, controls, x, J)
+            yield solved
+
+
+def _solve_on_cluster(client, spec, space, options, frames, P, runs, starts):
+    """Submit every frame as a task chained on the frame before it in its chunk (earlier frames
+    first); yield the solved frames as they finish."""
+    import operator
+
+    from distributed import as_completed
+
+    token = uuid.uuid4().hex[:8]
+    rows = []
+    for (first, stop, _), controls in zip(runs, starts):
+        state = (None, controls, None, None)
+        for i in range(first, stop):
+            # only the rows are held here: the scheduler keeps each state while the next frame needs it
+            state = client.submit(_solve_task, spec, space, options, P[i], int(frames[i]), i, state,
+                                  key=f"facesim-frame-{token}-{i}", priority=-i)
+            rows.append(client.submit(operator.getitem, state, 0, key=f"facesim-row-{token}-{i}", priority=-i))
+        state = None
+    finished = False
+    try:
+        for fut in as_completed(rows):
+            yield fut.result()
+        finished = True
+    finally:
+        if not finished:
+            client.cancel(rows)
+
+
+def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None = None, start: Controls | None = None,
+          resume: bool = False, progress: bool = True, client=None) -> dict:
+    """Fit every frame of ``P (F, r, 3)`` (mm, the model's marker order, NaN missing; frame numbers
+    ``frames (F,)``, unique) and write the results into ``out_dir`` (see the module doc).
+
+    ``sim``: a :class:`~facesim.fem.equilibrium.FaceSimulator` or a :class:`SimulatorSpec`;
+    ``client``: a ``distributed.Client`` solving the chunks in parallel (needs a spec). ``start``:
+    controls each chunk starts from (default rest). ``resume``: keep the frames in ``out_dir``
+    and solve only the others (a run continues from its last written frame, warm-started from
+    its controls). Returns the summary (also written to ``report.json``)."""
+    from tqdm import tqdm
+
+    options = options or TrackOptions()
+    spec = sim if isinstance(sim, SimulatorSpec) else None
+    if client is not None and spec is None:
+        raise FacesimError("parallel tracking: pass a SimulatorSpec (model file and options) for the workers to "
+                           "build their simulator from")
+    local = spec.build() if spec is not None else sim
+    model = local.model
+    P = np.asarray(P, dtype=np.float64)
+    frames = np.asarray(frames, dtype=np.int64)
+    if P.ndim != 3 or P.shape[1:] != (model.n_markers, 3) or len(frames) != len(P):
+        raise FacesimError(f"markers: expected ({len(frames)}, {model.n_markers}, 3) positions, got {P.shape}")
+    if len(np.unique(frames)) != len(frames):
+        raise FacesimError("frames: expected unique frame numbers")
+    if options.head == "procrustes":
+        P, _ = stabilise(model, P)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    space = ControlSpace.of(local, jaw=bool(getattr(local.jaw_model, "n_params", 0)))
+    jaw_names = list(getattr(local.jaw_model, "param_names", [f"q{k}" for k in range(space.n_jaw)]))
+    if getattr(local.jaw_model, "name", "") == "sliding-condyle":
+        jaw_names = ["opening", "right_slide", "left_slide"]
+    headers = {"activations": ["frame", *model.muscles.names], "jaw": ["frame", *jaw_names],
+               "residuals": ["frame", "rms", *model.markers.names], "frames": list(LOG_COLUMNS)}
+    n = len(frames)
+    n_workers = len(client.scheduler_info()["workers"]) if client is not None else 1
+    chunk = options.chunk_size or math.ceil(n / max(n_workers, 1)) or 1
+    previous = {}
+    if resume and (out / "report.json").is_file():
+        try:
+            previous = json.loads((out / "report.json").read_text()).get("outliers", {})
+        except (ValueError, AttributeError):
+            previous = {}
+    outputs = _Outputs(out, headers, frames, resume)
+    done = [int(k) in outputs.done for k in frames]
+    runs = _runs(n, chunk, done)
+    cold = start or Controls(np.zeros(model.n_muscles), jaw=_rest_jaw(space))
+    starts = [outputs.controls(int(frames[first - 1]), space) if warm else cold for first, _, warm in runs]
+    summary = {"frames": n, "reused_frames": int(sum(done)), "chunk_size": chunk,
+               "workers": n_workers if client is not None else 0, "loss": options.loss,
+               "outliers": {k: v for k, v in previous.items() if k.lstrip("-").isdigit() and int(k) in outputs.done},
+               "status": "running"}
+    t_start = time.perf_counter()
+    solved: dict[int, _Solved] = {}
+    if client is not None:
+        results = _solve_on_cluster(client, spec, space, options, frames, P, runs, starts)
+    else:
+        results = _solve_here(local, space, options, frames, P, runs, starts)
+    try:
+        with tqdm(total=n, initial=int(sum(done)), desc="solve-mocap", unit="frame", disable=not progress) as bar:
+            for s in results:
+                outputs.add(s.index, s.lines)
+                solved[s.index] = s
+                if s.outliers:
+                    summary["outliers"][str(int(frames[s.index]))] = list(s.outliers)
+                bar.set_postfix(rms=f"{s.rms:.2f}", steps=s.gn_steps, refresh=False)
+                bar.update(1)
+        summary["status"] = "complete"
+    except BaseException as exc:
+        summary["status"] = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed: {type(exc).__name__}"
+        raise
+    finally:
+        results.close()
+        outputs.close()
+        order = sorted(solved)
+        position = {int(k): i for i, k in enumerate(frames)}
+        summary.update({
+            "solved_frames": len(solved), "written_in_order": outputs.n_merged,
+            "seconds": round(time.perf_counter() - t_start, 3),
+            "gn_steps": [solved[i].gn_steps for i in order], "marker_rms": [round(solved[i].rms, 4) for i in order],
+            "outliers": dict(sorted(summary["outliers"].items(), key=lambda kv: position.get(int(kv[0]), 0))),
+        })
+        atomic_write(out / "report.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
+    return summary
+
+
+def _rest_jaw(space: ControlSpace):
+    if not space.n_jaw:
+        return None
+    return np.zeros(space.n_jaw) if space.jaw_rest is None else np.array(space.jaw_rest)
+
+
+__all__ = ["LOSSES", "SimulatorSpec", "TrackOptions", "dask_client", "fit_markers", "loss_weights", "match_markers",
+           "stabilise", "track"]

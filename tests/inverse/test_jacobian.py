@@ -98,3 +98,56 @@ def test_control_space_errors(box_model):
     space = ControlSpace.of(sim, jaw=False)
     with pytest.raises(FacesimError, match="expected 2 values"):
         space.apply(Controls([0.0, 0.0]), [1.0])
+
+
+def test_secant_update_is_exact_along_the_step_and_unchanged_across(box_model):
+    sim = FaceSimulator(box_model, EquilibriumOptions(newton=TIGHT), jaw_model=SlidingCondyleJaw(box_model.jaw))
+    controls = Controls([0.3, 0.2], jaw=[0.05, 0.5, 0.5])
+    eq = sim.equilibrium(controls)
+    space = ControlSpace.of(sim)
+    J = equilibrium_jacobian(sim, controls, eq.x, space)
+    assert J.age == 0 and J.tangent is not None            # direct solve: the factorisation is kept
+    dc = np.array([0.1, -0.05, 0.01, 0.3, 0.0])
+    moved = sim.equilibrium(space.apply(controls, space.vector(controls) + dc), x0=J.predict(dc))
+    dP = (box_model.marker_positions(moved.x) - box_model.marker_positions(eq.x)).ravel()
+    assert np.linalg.norm(J.dP @ dc - dP) > 1e-3 * np.linalg.norm(dP)   # the step is not linear
+    U = J.secant_update(dc, moved.x, dP, moved.controls)
+    assert U.age == 1 and U.tangent is J.tangent and U.x is not J.x
+    np.testing.assert_allclose(U.dP @ dc, dP, atol=1e-12 * np.abs(dP).max())
+    np.testing.assert_allclose(U.predict(dc * 0), moved.x)
+    np.testing.assert_allclose(U.dx @ dc, (moved.x - eq.x).ravel(), atol=1e-10)
+    across = np.array([0.05, 0.1, 0.0, 0.0, 0.0])
+    across -= dc * (across @ dc) / (dc @ dc)
+    np.testing.assert_allclose(U.dP @ across, J.dP @ across, atol=1e-12)
+    # it travels to another process without its factorisation (SuperLU does not pickle)
+    import pickle
+
+    back = pickle.loads(pickle.dumps(U))
+    assert back.tangent is None and U.tangent is not None and back.age == 1
+    np.testing.assert_array_equal(back.dP, U.dP)
+
+
+def test_near_equilibrium_reuses_the_tangent(box_model):
+    """Chord / preconditioned-Newton iterations on the Jacobian's factorised tangent reach the same
+    equilibrium as Newton from the first-order prediction; a far-away state is refused, not
+    mis-solved."""
+    from facesim.inverse.jacobian import near_equilibrium
+
+    sim = FaceSimulator(box_model, EquilibriumOptions(newton=NewtonOptions(linear_solver="direct", rtol=1e-9)),
+                        jaw_model=SlidingCondyleJaw(box_model.jaw))
+    controls = Controls([0.3, 0.2], jaw=[0.05, 0.5, 0.5])
+    eq = sim.equilibrium(controls)
+    space = ControlSpace.of(sim)
+    J = equilibrium_jacobian(sim, controls, eq.x, space)
+    dc = np.array([0.05, 0.04, 0.01, 0.2, -0.1])
+    target = space.apply(controls, space.vector(controls) + dc)
+    x, iterations, solves, ok = near_equilibrium(sim, target, J.predict(dc), J.tangent)
+    newton = sim.equilibrium(target, x0=J.predict(dc))
+    assert ok and 1 <= iterations <= 8 and solves >= iterations
+    scale = np.abs(newton.x - eq.x).max()
+    assert scale > 0.1
+    np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
+    # a large change from a bad start: no convergence claimed, the best iterate returned
+    far = Controls([1.0, 1.0], jaw=[0.4, 8.0, -8.0])
+    x_far, _, _, ok_far = near_equilibrium(sim, far, eq.x, J.tangent, max_iterations=2)
+    assert not ok_far and np.isfinite(x_far).all()
