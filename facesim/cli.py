@@ -278,9 +278,14 @@ def cmd_simulate(args) -> int:
 
     model = _load(args.model)
     frames, A = read_activations_csv(args.activations, model.muscles.names)
+    jaw_model = args.jaw_model
+    if jaw_model == "posselt":   # the model's own rig: the file beside the model, or the shipped one
+        from facesim.session import make_jaw_model
+
+        jaw_model = make_jaw_model(model, "posselt", model_path=args.model)
     T = None
     if args.jaw:
-        jaw_frames, T = read_jaw_csv(args.jaw, model, args.jaw_model)
+        jaw_frames, T = read_jaw_csv(args.jaw, model, jaw_model)
         check_same_frames(args.jaw, jaw_frames, args.activations, frames)
     from facesim.contact.scene import parse_collider_spec
 
@@ -292,7 +297,7 @@ def cmd_simulate(args) -> int:
                               contact_stiffness=args.contact_stiffness)
     info = {"model": str(args.model), "activations": str(args.activations),
             "jaw": str(args.jaw) if args.jaw else None, "collider_specs": list(args.collider)}
-    s = simulate(model, A, args.output, frames=frames, jaw=T, jaw_model=args.jaw_model, colliders=colliders,
+    s = simulate(model, A, args.output, frames=frames, jaw=T, jaw_model=jaw_model, colliders=colliders,
                  options=options, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, info=info)
     reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
     print(f"simulated {s['frames']} frames ({s['converged']} of {s['finished_frames']} converged{reused}) in "
@@ -310,15 +315,16 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_solve_mocap(args) -> int:
+    from contextlib import nullcontext
+
     import numpy as np
 
-    from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+    from facesim.fem.equilibrium import EquilibriumOptions
     from facesim.fem.newton import NewtonOptions
     from facesim.inverse.gauss_newton import FitOptions
     from facesim.inverse.plots import plot_track
-    from facesim.inverse.tracking import TrackOptions, match_markers, track
+    from facesim.inverse.tracking import SimulatorSpec, TrackOptions, dask_client, match_markers, track
     from facesim.mocap.io import read_markers
-    from facesim.session import make_jaw_model
 
     model = _load(args.model)
     data = read_markers(args.markers, units=args.units)
@@ -339,12 +345,28 @@ def cmd_solve_mocap(args) -> int:
         frames, P = frames[keep], P[keep]
         if not len(frames):
             raise FacesimError(f"--frames {args.frames}: no frames of {args.markers} in that range")
-    jaw = make_jaw_model(model, args.jaw_model)
-    sim = FaceSimulator(model, EquilibriumOptions(newton=NewtonOptions(linear_solver=args.solver)), jaw_model=jaw)
+    # workers build their simulator from the spec (model path, options); built here first, so a bad
+    # jaw model fails before any worker starts
+    spec = SimulatorSpec.of(args.model, EquilibriumOptions(newton=NewtonOptions(linear_solver=args.solver)),
+                            args.jaw_model)
+    spec.build()
     options = TrackOptions(fit=FitOptions(noise=args.noise, max_steps=args.max_steps), head=args.head,
-                           robust=not args.no_robust)
-    s = track(sim, frames, P, args.output, options=options, resume=args.resume, progress=not args.quiet)
+                           robust=not args.no_robust, loss=args.loss, loss_scale=args.loss_scale,
+                           chunk_size=args.chunk_size)
+    parallel = args.workers is not None or args.scheduler is not None
+    with dask_client(args.workers, args.scheduler) if parallel else nullcontext() as client:
+        s = track(spec, frames, P, args.output, options=options, resume=args.resume, progress=not args.quiet,
+                  client=client)
     plot_track(args.output)
+    if args.render:
+        from facesim.inverse.render import render_solve
+
+        video = render_solve(spec.build(), args.output, frames, P, head=args.head, fps=data.rate or 30.0,
+                             progress=not args.quiet)
+        print(f"video: {video}")
+    if s["outliers"]:
+        print(f"outlier markers: {sum(map(len, s['outliers'].values()))} in {len(s['outliers'])} of {len(frames)} "
+              f"frames ({'dropped, frames refitted' if options.robust else 'kept in the fit'}; see report.json)")
     rms = s["marker_rms"]
     print(f"solved {s['solved_frames']} frames ({s['reused_frames']} reused) in {s['seconds']:.1f} s; marker RMS "
           f"median {np.median(rms) if rms else float('nan'):.3f} mm -> {args.output}")
@@ -352,7 +374,7 @@ def cmd_solve_mocap(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from tqdm import tqdm
+    from facesim.mocap.demo import DEMO_CLIP, format_score, run_demo
 
     path = default_model_path()
     if not path.is_file():
@@ -362,40 +384,15 @@ def cmd_demo(args) -> int:
     model = _load(path)
     print(f"model {path}: {model.n_nodes:,} nodes, {model.n_tets:,} tets, {model.n_muscles} muscles, "
           f"{model.n_markers} markers")
-    from facesim.viz.render import render_contact_sheet, render_model
-
-    out = Path(args.output)
-    size = args.size
-    tile = (size[0] // 2, size[1] // 2)
-    jobs = [
-        ("front.png", lambda p: render_model(model, p, view="front", size=size)),
-        ("side.png", lambda p: render_model(model, p, view="side", size=size)),
-        ("three_quarter.png", lambda p: render_model(model, p, view="three_quarter", size=size)),
-        ("muscles.png", lambda p: render_model(model, p, view="front", size=size, show=("muscles",))),
-        ("sheet.png", lambda p: render_contact_sheet(model, p, tile_size=tile, progress=False)),
-    ]
-    written = []
-    for name, job in tqdm(jobs, desc="demo pictures", unit="picture", disable=args.quiet):
-        written.append(job(out / name))
-    # one expression through the quasistatic solver: a smile (zygomatic muscles, both sides)
-    import numpy as np
-
-    from facesim.controls import Controls
-    from facesim.fem.equilibrium import FaceSimulator
-
-    a = np.zeros(model.n_muscles)
-    for i, name in enumerate(model.muscles.names):
-        if name.rsplit("_", 1)[0] in ("zygomaticus_major", "zygomaticus_minor", "risorius"):
-            a[i] = 1.0
-    eq = FaceSimulator(model).equilibrium(Controls(a))
-    r = eq.report
-    print(f"smile: {'converged' if r.converged else 'NOT converged'} in {r.iterations} Newton iterations, "
-          f"relative residual {r.relative_residual:.1e}, {r.seconds['total']:.1f} s")
-    written.append(render_model(model, out / "smile.png", view="front", size=size, x=eq.x,
-                                show=("skin", "markers"), skin_opacity=1.0, legend=False, title="smile"))
-    print(f"wrote {len(written)} pictures to {out}/:")
-    for p in written:
-        print(f"  {p}")
+    r = run_demo(args.output, model, args.clip or DEMO_CLIP, frames=args.frames, render=args.render,
+                 progress=not args.quiet)
+    t = r["track"]
+    print(f"solved {t['solved_frames']} frames in {t['seconds']:.0f} s "
+          f"({t['seconds'] / max(1, t['solved_frames']):.1f} s per frame), recovery against the known truth:")
+    print(format_score(r["score"]))
+    shown = [Path(p).relative_to(args.output).as_posix() for p in r["outputs"] if Path(p).suffix != ".json"]
+    print(f"wrote {args.output}/: activations.csv, jaw.csv, residuals.csv, report.json, recovery.json, "
+          + ", ".join(shown))
     return 0
 
 
@@ -410,13 +407,26 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     demo = commands.add_parser(
-        "demo", help="render the shipped default model into a folder of PNGs",
-        description="Run facesim on the shipped default model (meshes/face_coarse.npz, or the file named by "
-                    f"${MODEL_ENV}): renders front, side, three-quarter and muscle pictures and a contact sheet.")
+        "demo", help="the main job on shipped data: solve the demo capture and print how well it is recovered",
+        description="Solve the shipped capture meshes/demo_clip.c3d -- made by simulating a known performance "
+                    "(talking, smiling, frowning, jaw open wide, a little head motion) on the finer "
+                    "meshes/face_medium.npz, sampled at its markers with 0.5 mm noise, a few outliers and gaps -- "
+                    "on the shipped coarse model (meshes/face_coarse.npz, or the file named by "
+                    f"${MODEL_ENV}) as solve-mocap does, then print the recovery against the known truth: marker "
+                    "RMS, activation error of the muscles the markers can see, jaw error and the planted outliers "
+                    "found. Writes OUT/ as solve-mocap does, plus recovery.png (true and solved curves) and "
+                    "recovery.json. A few minutes for the whole clip on 2 cores.",
+        epilog="Pictures of a model: 'facesim model render M.npz -o front.png' (--sheet for several views). "
+               "Regenerate the clip: 'python -m facesim.mocap.demo --make'.")
     demo.add_argument("-o", "--output", default="facesim_demo", metavar="OUT_DIR",
-                      help="folder for the pictures (default: %(default)s)")
-    demo.add_argument("--size", type=_size, default=(1200, 1200), metavar="WxH",
-                      help="size of each picture in pixels, the contact sheet is the same size (default: 1200x1200)")
+                      help="folder for the results (default: %(default)s)")
+    demo.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames of the clip (inclusive), e.g. 0:5")
+    demo.add_argument("--clip", metavar="F.c3d",
+                      help="another clip made by 'python -m facesim.mocap.demo --make' (its truth F_truth.npz beside "
+                           "it; default: the shipped meshes/demo_clip.c3d)")
+    demo.add_argument("--render", action="store_true",
+                      help="also render the solve side by side with the capture into OUT/render/ (see solve-mocap "
+                           "--render)")
     demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(func=cmd_demo)
 
@@ -503,11 +513,12 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--model", required=True, metavar="M.npz", help="model file")
     simulate.add_argument("--activations", required=True, metavar="A.csv", help="muscle activations per frame")
     simulate.add_argument("--jaw", metavar="J.csv", help="jaw pose per frame (default: jaw at rest)")
-    simulate.add_argument("--jaw-model", default="rigid", metavar="{rigid,sliding-condyle,posselt:RIG.npz,nlpca:RIG.npz}",
+    simulate.add_argument("--jaw-model", default="rigid", metavar="{rigid,sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
                           help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening), "
                                "sliding-condyle (frame,opening,left_slide,right_slide in rad, mm, mm; Sifakis 2005), "
                                "or a fitted jaw rig (facesim jaw fit): posselt:RIG.npz with frame,sx,sy,sz sliders in "
-                               "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3 (default: %(default)s)")
+                               "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3; posselt alone is the model's own rig "
+                               "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")
     simulate.add_argument("--collider", action="append", default=[], metavar="SPEC",
                           help="an external rigid object the skin cannot enter (repeatable): KIND:key=value,... "
                                "e.g. 'sphere:radius=12,path=ball.csv' (centre per frame from frame,x,y,z rows, mm), "
@@ -553,25 +564,53 @@ def build_parser() -> argparse.ArgumentParser:
                     "section search), warm-started from the previous frame. Writes frame by frame into OUT/: "
                     "activations.csv, jaw.csv, residuals.csv (per frame and marker, mm), frames.csv (solver log), "
                     "report.json, and at the end activations.png and residuals.png. --resume continues an "
-                    "interrupted run.",
+                    "interrupted run. With --workers or --scheduler the sequence is split into chunks solved in "
+                    "parallel by dask.distributed, each chunk starting cold; the files still hold the frames in "
+                    "order (frames finished ahead of an unfinished one wait in OUT/chunks/).",
         epilog="Marker names are matched to the model's (exactly, then ignoring case); unmatched names are "
-               "reported. Missing markers (NaN or empty) are dropped per frame.")
+               "reported. Missing markers (NaN or empty) are dropped per frame. Outliers (residual above the frame's median "
+               "plus 5 robust standard deviations, and above 2 mm) are reported in report.json and, unless --no-robust, "
+               "the frame is refitted without them; --loss huber or cauchy also down-weights far markers during "
+               "the fit (iteratively reweighted Gauss-Newton).")
     solve.add_argument("--model", required=True, metavar="M.npz", help="model file")
     solve.add_argument("--markers", required=True, metavar="F", help="capture: .c3d, .trc or .csv (mm unless stated)")
     solve.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
     solve.add_argument("--units", choices=("mm", "cm", "m"), help="override the file's length unit")
     solve.add_argument("--jaw-model", default="sliding-condyle",
-                       metavar="{sliding-condyle,posselt:RIG.npz,nlpca:RIG.npz}",
-                       help="jaw parameterisation solved for (default: %(default)s)")
+                       metavar="{sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
+                       help="jaw parameterisation solved for; posselt alone is the model's own Posselt rig "
+                            "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")
     solve.add_argument("--head", choices=("procrustes", "none"), default="procrustes",
                        help="stabilise the head with the head markers, or take the capture as already stabilised "
                             "(default: %(default)s)")
     solve.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames (inclusive)")
     solve.add_argument("--noise", type=float, default=0.5, help="marker noise level, mm (default: %(default)s)")
     solve.add_argument("--max-steps", type=int, default=5, help="Gauss-Newton steps per frame (default: %(default)s)")
-    solve.add_argument("--no-robust", action="store_true", help="keep outlier markers in the fit (still reported)")
+    solve.add_argument("--no-robust", action="store_true",
+                       help="keep outlier markers in the fit (still reported); by default a frame with outliers is "
+                            "refitted without them")
+    solve.add_argument("--loss", choices=("l2", "huber", "cauchy"), default="l2",
+                       help="per-marker loss on the marker distance: l2 (least squares), huber (linear beyond "
+                            "--loss-scale) or cauchy (logarithmic beyond it), the robust ones by iteratively "
+                            "reweighted Gauss-Newton (default: %(default)s)")
+    solve.add_argument("--loss-scale", type=float, metavar="MM",
+                       help="distance where the robust loss starts discounting a marker, mm (default: 3 x --noise)")
+    engine = solve.add_mutually_exclusive_group()
+    engine.add_argument("--workers", type=int, metavar="N",
+                        help="solve chunks of the sequence in parallel on a local dask cluster of N processes")
+    engine.add_argument("--scheduler", metavar="ADDRESS",
+                        help="solve chunks in parallel on a running dask.distributed cluster (e.g. tcp://host:8786); "
+                             "its workers must see the model file at the same path")
+    solve.add_argument("--chunk-size", type=int, metavar="FRAMES",
+                       help="frames per chunk, each starting cold (default: the frames divided evenly among the "
+                            "workers; one chunk without --workers/--scheduler)")
     solve.add_argument("--solver", choices=("amg", "direct"), default="amg", help="linear solver of the equilibria")
     solve.add_argument("--resume", action="store_true", help="continue the run in OUT_DIR")
+    solve.add_argument("--render", action="store_true",
+                       help="also render the solved frames side by side with the capture (left: the captured "
+                            "markers, stabilised; right: the simulated face with its markers and lines to the "
+                            "captured ones) into OUT/render/frame_KKKKK.png and OUT/render/video.mp4 (an animated "
+                            "GIF video.gif when imageio-ffmpeg is not installed)")
     solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     solve.set_defaults(func=cmd_solve_mocap)
     add_jaw_commands(commands)

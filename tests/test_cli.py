@@ -96,16 +96,11 @@ def test_render_writes_non_blank_png(box_model_path, tmp_path):
     assert Image.open(tmp_path / "s.png").size == (200, 200)
 
 
-def test_demo_renders_pictures(box_model_path, tmp_path, monkeypatch, capsys):
-    monkeypatch.setenv("FACESIM_MODEL", str(box_model_path))
-    assert default_model_path() == box_model_path
-    assert main(["demo", "-o", str(tmp_path / "demo"), "--size", "160x160", "-q"]) == 0
-    names = sorted(p.name for p in (tmp_path / "demo").iterdir())
-    assert names == ["front.png", "muscles.png", "sheet.png", "side.png", "smile.png", "three_quarter.png"]
-    for name in names:
-        assert np.asarray(Image.open(tmp_path / "demo" / name)).std() > 5
-    printed = capsys.readouterr().out
-    assert str(tmp_path / "demo") in printed and "smile: converged" in printed
+def test_demo_on_a_model_without_the_clip_markers_is_one_line(box_model_path, tmp_path):
+    # the full demo run is in tests/mocap/test_demo.py (it takes a while)
+    code, out, err = run("demo", "-o", tmp_path / "demo", env={"FACESIM_MODEL": str(box_model_path)})
+    assert_one_line_error(code, out, err, "demo_clip.c3d", "markers")
+    assert str(box_model_path) in out and not (tmp_path / "demo").exists()
 
 
 def test_default_model_is_in_the_repository(monkeypatch):
@@ -186,3 +181,22 @@ def test_python_dash_m_facesim_runs_the_cli():
     p = subprocess.run([sys.executable, "-m", "facesim", "--version"], capture_output=True, text=True,
                        env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=60)
     assert p.returncode == 0 and p.stdout.startswith("facesim ")
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"], ["--scheduler", "not allowed with", "--workers"]),
+    (["--loss", "tukey"], ["--loss", "tukey"]),
+    (["--chunk-size", "ten"], ["--chunk-size", "ten"]),
+])
+def test_solve_mocap_bad_engine_and_loss_arguments(args, words, tmp_path):
+    code, out, err = run("solve-mocap", "--model", tmp_path / "m.npz", "--markers", tmp_path / "m.trc",
+                         "-o", tmp_path / "out", *args)
+    assert_one_line_error(code, out, err, *words)
+
+
+def test_solve_mocap_help_names_the_loss_and_the_parallel_engine(capsys):
+    assert main(["solve-mocap", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    for words in ("--loss {l2,huber,cauchy}", "--workers N", "--scheduler ADDRESS", "--chunk-size FRAMES",
+                  "--no-robust", "dask.distributed"):
+        assert words in out
