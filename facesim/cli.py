@@ -339,6 +339,13 @@ def cmd_solve_mocap(args) -> int:
     P = np.full((len(data.frames), model.n_markers, 3), np.nan)
     P[:, index >= 0] = data.P[:, index[index >= 0]]
     frames = data.frames
+    neutral = None
+    if args.bind_frames:   # rebind the model's markers to the capture's neutral frames
+        lo, _, hi = args.bind_frames.partition(":")
+        pick = (frames >= int(lo or frames.min())) & (frames <= int(hi or lo or frames.max()))
+        if not pick.any():
+            raise FacesimError(f"--bind-frames {args.bind_frames}: no frames of {args.markers} in that range")
+        neutral = P[pick]
     if args.frames:
         lo, _, hi = args.frames.partition(":")
         keep = (frames >= int(lo or frames.min())) & (frames <= int(hi or frames.max()))
@@ -356,7 +363,7 @@ def cmd_solve_mocap(args) -> int:
     parallel = args.workers is not None or args.scheduler is not None
     with dask_client(args.workers, args.scheduler) if parallel else nullcontext() as client:
         s = track(spec, frames, P, args.output, options=options, resume=args.resume, progress=not args.quiet,
-                  client=client)
+                  client=client, neutral=neutral)
     plot_track(args.output)
     if args.render:
         from facesim.inverse.render import render_solve
@@ -584,6 +591,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="stabilise the head with the head markers, or take the capture as already stabilised "
                             "(default: %(default)s)")
     solve.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames (inclusive)")
+    solve.add_argument("--bind-frames", metavar="FIRST:LAST",
+                       help="frames of the capture showing the neutral face: the model's markers are first bound "
+                            "to the skin where these frames put them (per-marker median; Sifakis 2005), instead "
+                            "of the model's own marker placement")
     solve.add_argument("--noise", type=float, default=0.5, help="marker noise level, mm (default: %(default)s)")
     solve.add_argument("--max-steps", type=int, default=5, help="Gauss-Newton steps per frame (default: %(default)s)")
     solve.add_argument("--no-robust", action="store_true",

@@ -41,6 +41,7 @@ Files in ``out_dir`` (append-only logs, one complete line per frame, flushed and
 
 from __future__ import annotations
 
+import copy
 import csv
 import functools
 import hashlib
@@ -51,6 +52,7 @@ import os
 import shutil
 import time
 import uuid
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -303,11 +305,21 @@ def _solve_frame(sim, space, options, target, k: int, i: int, controls, x, jacob
     return solved, fit.controls, fit.x, fit.jacobian
 
 
-def _solve_task(spec: SimulatorSpec, space, options, target, k: int, i: int, state):
+def with_markers(sim, markers):
+    """``sim`` whose model carries ``markers`` (a :class:`~facesim.model.MarkerSet`; None: ``sim``
+    itself). A shallow copy: the mesh, its sparsity pattern and solvers are shared."""
+    if markers is None or markers is sim.model.markers:
+        return sim
+    other = copy.copy(sim)
+    other.model = sim.model.with_(markers=markers)
+    return other
+
+
+def _solve_task(spec: SimulatorSpec, space, options, target, k: int, i: int, state, markers=None):
     """A worker's task: frame ``k`` from ``state = (_, controls, x, jacobian)`` of the frame before
     it (a Jacobian that crossed processes lost its factorisation; fit_frame copes)."""
     _, controls, x, jacobian = state
-    return _solve_frame(spec.build(), space, options, target, k, i, controls, x, jacobian)
+    return _solve_frame(with_markers(spec.build(), markers), space, options, target, k, i, controls, x, jacobian)
 
 
 def _outliers(P, target, options: TrackOptions) -> list[int]:
@@ -452,7 +464,7 @@ def _solve_here(sim, space, options, frames, P, runs, starts):
             yield solved
 
 
-def _solve_on_cluster(client, spec, space, options, frames, P, runs, starts):
+def _solve_on_cluster(client, spec, space, options, frames, P, runs, starts, markers=None):
     """Submit every frame as a task chained on the frame before it in its chunk (earlier frames
     first); yield the solved frames as they finish."""
     import operator
@@ -465,7 +477,7 @@ def _solve_on_cluster(client, spec, space, options, frames, P, runs, starts):
         state = (None, controls, None, None)
         for i in range(first, stop):
             # only the rows are held here: the scheduler keeps each state while the next frame needs it
-            state = client.submit(_solve_task, spec, space, options, P[i], int(frames[i]), i, state,
+            state = client.submit(_solve_task, spec, space, options, P[i], int(frames[i]), i, state, markers,
                                   key=f"facesim-frame-{token}-{i}", priority=-i)
             rows.append(client.submit(operator.getitem, state, 0, key=f"facesim-row-{token}-{i}", priority=-i))
         state = None
@@ -480,7 +492,7 @@ def _solve_on_cluster(client, spec, space, options, frames, P, runs, starts):
 
 
 def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None = None, start: Controls | None = None,
-          resume: bool = False, progress: bool = True, client=None) -> dict:
+          resume: bool = False, progress: bool = True, client=None, neutral=None) -> dict:
     """Fit every frame of ``P (F, r, 3)`` (mm, the model's marker order, NaN missing; frame numbers
     ``frames (F,)``, unique) and write the results into ``out_dir`` (see the module doc).
 
@@ -488,7 +500,11 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     ``client``: a ``distributed.Client`` solving the chunks in parallel (needs a spec). ``start``:
     controls each chunk starts from (default rest). ``resume``: keep the frames in ``out_dir``
     and solve only the others (a run continues from its last written frame, warm-started from
-    its controls). Returns the summary (also written to ``report.json``)."""
+    its controls). ``neutral (r, 3)`` or ``(k, r, 3)``: capture frames of the neutral face (model
+    marker order, NaN missing, same coordinates as ``P``; several: the per-marker median after
+    stabilisation); the model's markers are first rebound to where it puts
+    them (:func:`facesim.mocap.binding.rebind_markers`, Sifakis 2005's binding of the capture to
+    the skin). Returns the summary (also written to ``report.json``)."""
     from tqdm import tqdm
 
     options = options or TrackOptions()
@@ -504,8 +520,27 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         raise FacesimError(f"markers: expected ({len(frames)}, {model.n_markers}, 3) positions, got {P.shape}")
     if len(np.unique(frames)) != len(frames):
         raise FacesimError("frames: expected unique frame numbers")
+    rebinding = None
+    if neutral is not None:
+        from facesim.mocap.binding import rebind_markers
+
+        neutral = np.asarray(neutral, dtype=np.float64)
+        neutral = neutral[None] if neutral.ndim == 2 else neutral
+        if neutral.ndim != 3 or neutral.shape[1:] != (model.n_markers, 3) or not len(neutral):
+            raise FacesimError(f"neutral markers: expected (k, {model.n_markers}, 3) positions, got {neutral.shape}")
+        if options.head == "procrustes":
+            neutral = stabilise(model, neutral)[0]
+        with warnings.catch_warnings():   # a marker missing in every neutral frame keeps its binding
+            warnings.simplefilter("ignore", RuntimeWarning)
+            neutral = np.nanmedian(neutral, axis=0)   # per marker: robust to an outlier in one frame
+        bound, moved = rebind_markers(model, neutral)
+        rebinding = {"markers_moved_mm": {"mean": round(float(moved.mean()), 3), "max": round(float(moved.max()), 3)},
+                     "largest": {model.markers.names[j]: round(float(moved[j]), 3) for j in np.argsort(moved)[-3:][::-1]}}
     if options.head == "procrustes":
         P, _ = stabilise(model, P)
+    if rebinding is not None:   # after stabilising: the head frame is the model's own rest head markers
+        local = with_markers(local, bound.markers)
+        model = local.model
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     space = ControlSpace.of(local, jaw=bool(getattr(local.jaw_model, "n_params", 0)))
@@ -529,13 +564,14 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     cold = start or Controls(np.zeros(model.n_muscles), jaw=_rest_jaw(space))
     starts = [outputs.controls(int(frames[first - 1]), space) if warm else cold for first, _, warm in runs]
     summary = {"frames": n, "reused_frames": int(sum(done)), "chunk_size": chunk,
-               "workers": n_workers if client is not None else 0, "loss": options.loss,
+               "workers": n_workers if client is not None else 0, "loss": options.loss, "rebinding": rebinding,
                "outliers": {k: v for k, v in previous.items() if k.lstrip("-").isdigit() and int(k) in outputs.done},
                "status": "running"}
     t_start = time.perf_counter()
     solved: dict[int, _Solved] = {}
     if client is not None:
-        results = _solve_on_cluster(client, spec, space, options, frames, P, runs, starts)
+        results = _solve_on_cluster(client, spec, space, options, frames, P, runs, starts,
+                                    None if rebinding is None else model.markers)
     else:
         results = _solve_here(local, space, options, frames, P, runs, starts)
     try:

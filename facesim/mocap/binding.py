@@ -1,0 +1,72 @@
+"""Binding a capture's markers to the model's skin at the neutral pose (Sifakis et al. 2005).
+
+A model's markers are named points bound to its skin: a skin triangle, barycentric coordinates
+and an offset along the triangle's normal (``FaceModel.markers``). Those bindings come from the
+model's anatomy; the physical markers of a capture sit wherever the performer's markers were
+glued, and on a model of another resolution a "same" landmark can land millimetres away (a skin
+fold projects differently). :func:`rebind_markers` moves each binding to where a neutral frame
+of the capture puts that marker: the closest point of the skin near the model's own binding
+(triangles within ``radius`` of it whose normal agrees with its triangle's), plus the normal
+offset of the captured point from that surface. The capture's frame must show the neutral face,
+already in the model's head frame (stabilised).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from facesim.errors import FacesimError
+from facesim.model import FaceModel, MarkerSet
+
+#: Skin triangles farther than this from a marker's own binding are not candidates (mm).
+SEARCH_RADIUS = 15.0
+#: ... nor those whose rest normal differs from the binding triangle's by more than ~60 degrees
+#: (keeps a lip marker off the mouth lining a few mm behind it).
+MIN_NORMAL_COS = 0.5
+
+
+def _normals(X, tris) -> np.ndarray:
+    n = np.cross(X[tris[:, 1]] - X[tris[:, 0]], X[tris[:, 2]] - X[tris[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def rebind_markers(model: FaceModel, neutral, radius: float = SEARCH_RADIUS,
+                   max_distance: float = 10.0) -> tuple[FaceModel, np.ndarray]:
+    """The model with its markers bound where ``neutral (r, 3)`` (mm, model marker order, NaN:
+    keep the model's binding) puts them at rest, and the distance each binding moved (mm, 0 for
+    kept ones).
+
+    A captured point farther than ``max_distance`` mm from every candidate surface point is a
+    bad neutral frame or a mislabelled marker: FacesimError names it.
+    """
+    P = np.asarray(neutral, dtype=np.float64)
+    if P.shape != (model.n_markers, 3):
+        raise FacesimError(f"neutral markers: expected ({model.n_markers}, 3) positions, got {P.shape}")
+    X, skin, m = model.X, model.skin, model.markers
+    rest = model.marker_positions()
+    centroids = X[skin].mean(axis=1)
+    normals = _normals(X, skin)
+    tri, bary, offset = m.triangle.copy(), m.bary.copy(), m.offset.copy()
+    moved = np.zeros(model.n_markers)
+    for i in np.flatnonzero(np.isfinite(P).all(axis=1)):   # one small query per marker (tens of them)
+        near = np.flatnonzero((np.linalg.norm(centroids - rest[i], axis=1) < radius)
+                              & (normals @ normals[m.triangle[i]] > MIN_NORMAL_COS))
+        near = np.union1d(near, [m.triangle[i]])
+        mesh = trimesh.Trimesh(X, skin[near], process=False)
+        closest, distance, k = trimesh.proximity.closest_point(mesh, P[i][None])
+        if distance[0] > max_distance:
+            raise FacesimError(f"neutral markers: {m.names[i]} is {distance[0]:.1f} mm from the skin near its "
+                               f"binding (expected <= {max_distance:g} mm); is the frame neutral and stabilised?")
+        t = int(near[k[0]])
+        b = trimesh.triangles.points_to_barycentric(X[skin[t]][None], closest)[0]
+        b = np.clip(b, 0.0, None)
+        tri[i], bary[i] = t, b / b.sum()
+        offset[i] = float((P[i] - closest[0]) @ normals[t])
+    new = MarkerSet(names=m.names, triangle=tri.astype(m.triangle.dtype), bary=bary, offset=offset, head=m.head)
+    out = model.with_(markers=new)
+    moved = np.linalg.norm(out.marker_positions() - rest, axis=1)
+    return out, moved
+
+
+__all__ = ["rebind_markers", "SEARCH_RADIUS"]
