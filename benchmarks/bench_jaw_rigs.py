@@ -59,10 +59,7 @@ def main(argv=None):
           f"{'test p95':>10}{'test max':>10}")
     summary = {name: [] for name in RIGS}
     for name in args.subjects:
-        motion = JawMotion(subject=_subject(name))
-        train = motion.session(seed=1, noise=args.noise)
-        test = motion.session(seed=2, noise=args.noise)
-        frame = JawFrame.from_poses(train.poses, train.reference_point)
+        train, test, frame = _sessions(name, args.noise)
         reports = compare_rigs(train, test, points, front_weights(points, frame), frame=frame)
         for r in reports.values():
             summary[r.name].append(r.test.mean)
@@ -83,16 +80,20 @@ def _subject(name: str) -> Subject:
     return Subject.random(int(name))
 
 
+def _sessions(name, noise):
+    """Training session (seed 1), test session (seed 2) and the jaw frame of the training poses."""
+    motion = JawMotion(subject=_subject(name))
+    train = motion.session(seed=1, noise=noise)
+    return train, motion.session(seed=2, noise=noise), JawFrame.from_poses(train.poses, train.reference_point)
+
+
 def detection_table(args, points):
     from scipy.spatial import cKDTree
 
     print(f"\n{'subject':<9}{'found s':>8}{'gap mean':>10}{'gap max':>9}{'labelled mean':>15}{'found mean':>12}"
           f"{'found max':>11}   (envelope found in unlabelled poses vs labelled, mm)")
     for name in args.subjects:
-        motion = JawMotion(subject=_subject(name))
-        train = motion.session(seed=1, noise=args.noise)
-        test = motion.session(seed=2, noise=args.noise)
-        frame = JawFrame.from_poses(train.poses, train.reference_point)
+        train, test, frame = _sessions(name, args.noise)
         labelled = fit_posselt(train, frame=frame)
         start = time.perf_counter()
         found = fit_posselt(train, frame=frame, border="detect")
@@ -111,10 +112,7 @@ def nlpca_table(args, points):
     print(f"\n{'subject':<9}{'params':>7}{'PCA mean':>10}{'PCA max':>9}{'NLPCA mean':>12}{'NLPCA max':>11}"
           f"{'train s':>9}   (Yang et al. 2018: 1.73 mm mean)")
     for name in args.subjects:
-        motion = JawMotion(subject=_subject(name))
-        train = motion.session(seed=1, noise=args.noise)
-        test = motion.session(seed=2, noise=args.noise)
-        frame = JawFrame.from_poses(train.poses, train.reference_point)
+        train, test, frame = _sessions(name, args.noise)
         report = compare_reconstruction(train.poses, test.poses, frame, points, front_weights(points, frame))
         for k in (1, 2, 3):
             print(f"{name:<9}{k:>7}{report.pca[k][0]:>10.3f}{report.pca[k][1]:>9.3f}{report.nlpca[k][0]:>12.3f}"

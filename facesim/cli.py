@@ -323,8 +323,8 @@ def cmd_solve_mocap(args) -> int:
     from facesim.fem.newton import NewtonOptions
     from facesim.inverse.gauss_newton import FitOptions
     from facesim.inverse.plots import plot_track
-    from facesim.inverse.tracking import SimulatorSpec, TrackOptions, dask_client, match_markers, track
-    from facesim.mocap.io import read_markers
+    from facesim.inverse.tracking import SimulatorSpec, TrackOptions, bind_neutral, dask_client, match_markers, track
+    from facesim.mocap.io import frame_mask, read_markers
 
     model = _load(args.model)
     data = read_markers(args.markers, units=args.units)
@@ -339,13 +339,8 @@ def cmd_solve_mocap(args) -> int:
     P = np.full((len(data.frames), model.n_markers, 3), np.nan)
     P[:, index >= 0] = data.P[:, index[index >= 0]]
     frames = data.frames
-    neutral = None
-    if args.bind_frames:   # rebind the model's markers to the capture's neutral frames
-        lo, _, hi = args.bind_frames.partition(":")
-        pick = (frames >= int(lo or frames.min())) & (frames <= int(hi or lo or frames.max()))
-        if not pick.any():
-            raise FacesimError(f"--bind-frames {args.bind_frames}: no frames of {args.markers} in that range")
-        neutral = P[pick]
+    # rebind the model's markers to the capture's neutral frames
+    neutral = P[frame_mask(args.bind_frames, frames, "--bind-frames")] if args.bind_frames else None
     if args.frames:
         lo, _, hi = args.frames.partition(":")
         keep = (frames >= int(lo or frames.min())) & (frames <= int(hi or frames.max()))
@@ -368,7 +363,8 @@ def cmd_solve_mocap(args) -> int:
     if args.render:
         from facesim.inverse.render import render_solve
 
-        video = render_solve(spec.build(), args.output, frames, P, head=args.head, fps=data.rate or 30.0,
+        sim = spec.build() if neutral is None else bind_neutral(spec.build(), neutral, args.head)[0]   # as solved
+        video = render_solve(sim, args.output, frames, P, head=args.head, fps=data.rate or 30.0,
                              progress=not args.quiet)
         print(f"video: {video}")
     if s["outliers"]:

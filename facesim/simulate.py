@@ -101,15 +101,12 @@ def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.n
     """
     from facesim.controls import RigidJaw
 
-    if isinstance(jaw_model, str) and (":" in jaw_model or jaw_model == "posselt"):
+    if isinstance(jaw_model, str) and jaw_model not in JAW_MODELS:   # a rig; unknown names are refused there
         from facesim.session import make_jaw_model
 
         jaw_model = make_jaw_model(model, jaw_model)
     if not isinstance(jaw_model, str):
         return _read_rig_csv(path, jaw_model)
-    if jaw_model not in JAW_MODELS:
-        raise FacesimError(f"jaw model: expected one of {', '.join(JAW_MODELS)}, posselt:RIG.npz or nlpca:RIG.npz, "
-                           f"got {jaw_model!r}")
     if jaw_model == "sliding-condyle":
         return _read_condyle_csv(path, model)
     table = read_table(path, "jaw file", example="frame,rx,ry,rz,tx,ty,tz' or 'frame,opening")

@@ -315,6 +315,30 @@ def with_markers(sim, markers):
     return other
 
 
+def bind_neutral(sim, neutral, head: str = "procrustes"):
+    """``sim`` with its model's markers bound where the capture's neutral frames ``neutral (r, 3)``
+    or ``(k, r, 3)`` put them (model marker order, NaN missing; stabilised first with
+    ``head="procrustes"``; several frames: the per-marker median, robust to an outlier in one
+    frame) by :func:`facesim.mocap.binding.rebind_markers`, and a summary of how far the markers
+    moved (mm)."""
+    from facesim.mocap.binding import rebind_markers
+
+    model = sim.model
+    neutral = np.asarray(neutral, dtype=np.float64)
+    neutral = neutral[None] if neutral.ndim == 2 else neutral
+    if neutral.ndim != 3 or neutral.shape[1:] != (model.n_markers, 3) or not len(neutral):
+        raise FacesimError(f"neutral markers: expected (k, {model.n_markers}, 3) positions, got {neutral.shape}")
+    if head == "procrustes":
+        neutral = stabilise(model, neutral)[0]
+    with warnings.catch_warnings():   # a marker missing in every neutral frame keeps its binding
+        warnings.simplefilter("ignore", RuntimeWarning)
+        neutral = np.nanmedian(neutral, axis=0)
+    bound, moved = rebind_markers(model, neutral)
+    summary = {"markers_moved_mm": {"mean": round(float(moved.mean()), 3), "max": round(float(moved.max()), 3)},
+               "largest": {model.markers.names[j]: round(float(moved[j]), 3) for j in np.argsort(moved)[-3:][::-1]}}
+    return with_markers(sim, bound.markers), summary
+
+
 def _solve_task(spec: SimulatorSpec, space, options, target, k: int, i: int, state, markers=None):
     """A worker's task: frame ``k`` from ``state = (_, controls, x, jacobian)`` of the frame before
     it (a Jacobian that crossed processes lost its factorisation; fit_frame copes)."""
@@ -522,24 +546,11 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         raise FacesimError("frames: expected unique frame numbers")
     rebinding = None
     if neutral is not None:
-        from facesim.mocap.binding import rebind_markers
-
-        neutral = np.asarray(neutral, dtype=np.float64)
-        neutral = neutral[None] if neutral.ndim == 2 else neutral
-        if neutral.ndim != 3 or neutral.shape[1:] != (model.n_markers, 3) or not len(neutral):
-            raise FacesimError(f"neutral markers: expected (k, {model.n_markers}, 3) positions, got {neutral.shape}")
-        if options.head == "procrustes":
-            neutral = stabilise(model, neutral)[0]
-        with warnings.catch_warnings():   # a marker missing in every neutral frame keeps its binding
-            warnings.simplefilter("ignore", RuntimeWarning)
-            neutral = np.nanmedian(neutral, axis=0)   # per marker: robust to an outlier in one frame
-        bound, moved = rebind_markers(model, neutral)
-        rebinding = {"markers_moved_mm": {"mean": round(float(moved.mean()), 3), "max": round(float(moved.max()), 3)},
-                     "largest": {model.markers.names[j]: round(float(moved[j]), 3) for j in np.argsort(moved)[-3:][::-1]}}
+        bound, rebinding = bind_neutral(local, neutral, options.head)
     if options.head == "procrustes":
         P, _ = stabilise(model, P)
     if rebinding is not None:   # after stabilising: the head frame is the model's own rest head markers
-        local = with_markers(local, bound.markers)
+        local = bound
         model = local.model
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -608,5 +619,5 @@ def _rest_jaw(space: ControlSpace):
     return np.zeros(space.n_jaw) if space.jaw_rest is None else np.array(space.jaw_rest)
 
 
-__all__ = ["LOSSES", "SimulatorSpec", "TrackOptions", "dask_client", "fit_markers", "loss_weights", "match_markers",
+__all__ = ["bind_neutral", "LOSSES", "SimulatorSpec", "TrackOptions", "dask_client", "fit_markers", "loss_weights", "match_markers",
            "stabilise", "track"]

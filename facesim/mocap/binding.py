@@ -48,7 +48,6 @@ def rebind_markers(model: FaceModel, neutral, radius: float = SEARCH_RADIUS,
     centroids = X[skin].mean(axis=1)
     normals = _normals(X, skin)
     tri, bary, offset = m.triangle.copy(), m.bary.copy(), m.offset.copy()
-    moved = np.zeros(model.n_markers)
     for i in np.flatnonzero(np.isfinite(P).all(axis=1)):   # one small query per marker (tens of them)
         near = np.flatnonzero((np.linalg.norm(centroids - rest[i], axis=1) < radius)
                               & (normals @ normals[m.triangle[i]] > MIN_NORMAL_COS))

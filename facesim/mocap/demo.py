@@ -426,25 +426,6 @@ def plot_recovery(truth: dict, out_dir) -> Path:
 
 
 # ------------------------------------------------------------------ the demo
-def _frame_range(spec, frames: np.ndarray) -> np.ndarray:
-    """Mask of ``frames`` within ``spec`` ``"FIRST:LAST"`` (inclusive; either end may be empty)."""
-    if not spec:
-        return np.ones(len(frames), dtype=bool)
-    lo, sep, hi = str(spec).partition(":")
-    try:
-        first = int(lo) if lo.strip() else int(frames.min())
-        last = int(hi) if hi.strip() else int(frames.max())
-    except ValueError:
-        raise FacesimError(f"--frames: expected FIRST:LAST frame numbers, e.g. 0:9, got {spec!r}") from None
-    if not sep:
-        last = first
-    keep = (frames >= first) & (frames <= last)
-    if not keep.any():
-        raise FacesimError(f"--frames {spec}: no frames in that range (the clip has frames "
-                           f"{int(frames.min())}..{int(frames.max())})")
-    return keep
-
-
 def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = False, progress: bool = True,
              say=print) -> dict:
     """Solve the demo clip on ``model`` and score the solve against the clip's truth.
@@ -464,9 +445,9 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     from facesim.fem.equilibrium import FaceSimulator
     from facesim.inverse.gauss_newton import FitOptions
     from facesim.inverse.plots import plot_track
-    from facesim.inverse.tracking import TrackOptions, match_markers, track
+    from facesim.inverse.tracking import TrackOptions, bind_neutral, match_markers, track
     from facesim.kinematics.condyle import SlidingCondyleJaw
-    from facesim.mocap.io import read_markers
+    from facesim.mocap.io import frame_mask, read_markers
     from facesim.model import load_model
 
     say = say or (lambda *_: None)
@@ -486,7 +467,7 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     P = np.full((len(data.frames), model.n_markers, 3), np.nan)
     P[:, index >= 0] = data.P[:, index[index >= 0]]
     P_all = P
-    keep = _frame_range(frames, data.frames)
+    keep = frame_mask(frames, data.frames)
     frame_numbers, P = data.frames[keep], P[keep]
     fine = truth["meta"]["model"]
     say(f"clip {clip.name}: {len(data.frames)} frames at {data.rate or truth['fps']:g} Hz, {len(data.names)} markers, "
@@ -505,7 +486,8 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     if render:
         from facesim.inverse.render import render_solve
 
-        outputs.append(render_solve(sim, out_dir, frame_numbers, P, fps=float(data.rate or truth["fps"]),
+        bound = bind_neutral(sim, P_all[:hold], options.head)[0]       # the markers as solved
+        outputs.append(render_solve(bound, out_dir, frame_numbers, P, fps=float(data.rate or truth["fps"]),
                                     progress=progress))
     return {"score": score, "track": summary, "outputs": outputs, "seconds": time.perf_counter() - t0}
 

@@ -288,6 +288,27 @@ def read_markers(path, units: str | None = None) -> MarkerData:
     return data
 
 
+def frame_mask(spec, frames: np.ndarray, option: str = "--frames") -> np.ndarray:
+    """Mask of ``frames`` within ``spec`` ``"FIRST:LAST"`` (inclusive; either end may be empty, a
+    single number is that frame; empty ``spec``: all). ``option`` names the setting in errors."""
+    frames = np.asarray(frames)
+    if not spec:
+        return np.ones(len(frames), dtype=bool)
+    lo, sep, hi = str(spec).partition(":")
+    try:
+        first = int(lo) if lo.strip() else int(frames.min())
+        last = int(hi) if hi.strip() else int(frames.max())
+    except ValueError:
+        raise FacesimError(f"{option}: expected FIRST:LAST frame numbers, e.g. 0:9, got {spec!r}") from None
+    if not sep:
+        last = first
+    keep = (frames >= first) & (frames <= last)
+    if not keep.any():
+        raise FacesimError(f"{option} {spec}: no frames in that range (the capture has frames "
+                           f"{int(frames.min())}..{int(frames.max())})")
+    return keep
+
+
 def _declared_units(path: Path, suffix: str) -> str:
     if suffix == ".c3d":
         import ezc3d
