@@ -276,9 +276,10 @@ def _groups(names) -> dict[str, list[int]]:
 
 def score_solve(truth: dict, out_dir, model: FaceModel | None = None) -> dict:
     """Compare the solve in ``out_dir`` (the files :func:`track` wrote) with the clip's ``truth``
-    (:func:`load_truth`), over the frames solved; ``model``: the solve model, to measure how far
-    its rest markers sit from the clip model's (``marker_rms["mesh_gap"]``, face markers, mm, and
-    ``marker_rms["worst_placed"]`` the worst marker and its distance): a floor under the marker RMS.
+    (:func:`load_truth`), over the frames solved; ``model``: the solve model with its markers as
+    the solve bound them, to measure how far its rest markers sit from the clip model's
+    (``marker_rms["mesh_gap"]``, face markers, mm, and ``marker_rms["worst_placed"]`` the worst
+    marker and its distance): a floor under the marker RMS.
 
     Returns a JSON-serialisable dict: ``frames``; ``marker_rms`` (mm, per frame RMS over the markers
     the fit used: ``mean``, ``max``, ``noise_rms`` the noise's own 3-D RMS); ``activation``
@@ -369,8 +370,8 @@ def format_score(s: dict) -> str:
         "  per group     " + ", ".join(f"{g} {v:.3f}" for g, v in a["groups"].items()),
     ]
     if "mesh_gap" in m:
-        lines.insert(1, f"                the two meshes' rest markers differ by {m['mesh_gap']:.2f} mm RMS (worst "
-                        f"{m['worst_placed'][0]}, {m['worst_placed'][1]:.1f} mm): a floor under the RMS")
+        lines.insert(1, f"                the markers as bound sit {m['mesh_gap']:.2f} mm RMS from the clip's at rest "
+                        f"(worst {m['worst_placed'][0]}, {m['worst_placed'][1]:.1f} mm): a floor under the RMS")
     if a["not_visible"]:
         lines.append(f"  not scored    {', '.join(a['not_visible'])}")
     if j:
@@ -478,15 +479,15 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     # clip was made on another mesh, where the same landmark can sit millimetres away
     hold = neutral_frames(len(data.frames))
     summary = track(sim, frame_numbers, P, out_dir, options=options, progress=progress, neutral=P_all[:hold])
+    bound = bind_neutral(sim, P_all[:hold], options.head)[0]   # the markers as track bound them (~0.1 s)
     outputs = plot_track(out_dir)
     outputs.append(plot_recovery(truth, out_dir))
-    score = score_solve(truth, out_dir, model)
+    score = score_solve(truth, out_dir, bound.model)
     out = Path(out_dir)
     outputs.append(atomic_write(out / "recovery.json", lambda tmp: tmp.write_text(json.dumps(score, indent=2) + "\n")))
     if render:
         from facesim.inverse.render import render_solve
 
-        bound = bind_neutral(sim, P_all[:hold], options.head)[0]       # the markers as solved
         outputs.append(render_solve(bound, out_dir, frame_numbers, P, fps=float(data.rate or truth["fps"]),
                                     progress=progress))
     return {"score": score, "track": summary, "outputs": outputs, "seconds": time.perf_counter() - t0}
