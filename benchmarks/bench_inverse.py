@@ -156,9 +156,11 @@ def main(argv=None):
     ap.add_argument("--verbose", action="store_true", help="print every frame")
     ap.add_argument("--jacobian-max-age", type=int, default=None, help="FitOptions.jacobian_max_age")
     ap.add_argument("--jacobian-drift", type=float, default=None, help="FitOptions.jacobian_drift")
+    ap.add_argument("--resolution", type=float, default=None, help="FitOptions.resolution")
     args = ap.parse_args(argv)
     fit_options = {k: v for k, v in (("jacobian_max_age", args.jacobian_max_age),
-                                     ("jacobian_drift", args.jacobian_drift)) if v is not None}
+                                     ("jacobian_drift", args.jacobian_drift),
+                                     ("resolution", args.resolution)) if v is not None}
     import numba
 
     if args.threads:

@@ -18,7 +18,7 @@ from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
 from facesim._kernels.fibre import fibre_stress
-from facesim._kernels.mooney import MODES_WORK, mr_modes
+from facesim._kernels.mooney import MODES_WORK, mr_modes, mr_stress, mr_tangent
 
 
 @njit(**JIT_FLAGS)
@@ -97,7 +97,10 @@ def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems,
         for i in range(c * n // nc, (c + 1) * n // nc):
             e = elems[i]
             deformation_gradient(x, tets[e], Bm[e], F)
-            acc += V0[e] * mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work, False)
+            psi, fast = mr_stress(F, c10[e], c01[e], kappa[e], vol, eps, P, work)
+            if not fast:   # a singular value may be clamped: the SVD form
+                psi = mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work, False)
+            acc += V0[e] * psi
             if want_gradient:
                 shape_gradients(Bm[e], b)
                 for a in range(4):
@@ -132,7 +135,9 @@ def _add_block(data, e2b_e, K):
 
 @njit(**JIT_FLAGS)
 def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, K, scratch, work):
-    """12x12 Hessian of one tet into ``K`` (zeroed here); ``scratch (>= 9 + 9 + 81 + 12 + 12,)``."""
+    """12x12 Hessian of one tet into ``K`` (overwritten); ``scratch (>= ELEMENT_SCRATCH,)``,
+    ``work (>= ELEMENT_WORK,)``. The true Hessian of an unclamped tet comes from the
+    invariants (:func:`~facesim._kernels.mooney.mr_tangent`), otherwise from the SVD modes."""
     F = scratch[0:9].reshape((3, 3))
     P = scratch[9:18].reshape((3, 3))
     Q = scratch[18:99].reshape((9, 3, 3))
@@ -140,8 +145,27 @@ def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, 
     w = scratch[111:123]
     lam = scratch[123:132]
     deformation_gradient(x, tet, Bm, F)
-    mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work)
     shape_gradients(Bm, b)
+    if not project:
+        D = scratch[18:99].reshape((9, 9))
+        if mr_tangent(F, c10, c01, kappa, vol, eps, D, work):   # no clamp active: no SVD needed
+            # K[3a+k, 3c+m] = V0 sum_ln D[3k+l, 3m+n] b[a,l] b[c,n], via T[3k+l, 3c+m] = sum_n D b[c,n]
+            T = work[36:144].reshape((9, 12))
+            for r in range(9):
+                for c in range(4):
+                    for m in range(3):
+                        T[r, 3 * c + m] = D[r, 3 * m] * b[c, 0] + D[r, 3 * m + 1] * b[c, 1] + D[r, 3 * m + 2] * b[c, 2]
+            for a in range(4):
+                for k in range(3):
+                    row = 3 * a + k
+                    for col in range(row, 12):
+                        K[row, col] = V0 * (b[a, 0] * T[3 * k, col] + b[a, 1] * T[3 * k + 1, col]
+                                            + b[a, 2] * T[3 * k + 2, col])
+            for r in range(12):
+                for c in range(r):
+                    K[r, c] = K[c, r]
+            return
+    mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work)
     for r in range(12):
         for c in range(12):
             K[r, c] = 0.0
@@ -163,6 +187,7 @@ def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, 
 
 
 ELEMENT_SCRATCH = 132
+ELEMENT_WORK = max(MODES_WORK, 144)   # work of elastic_element_hessian
 
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -175,7 +200,7 @@ def elastic_assemble(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, color_
         for c in prange(nc):
             K = np.empty((12, 12))
             scratch = np.empty(ELEMENT_SCRATCH)
-            work = np.empty(MODES_WORK)
+            work = np.empty(ELEMENT_WORK)
             for i in range(c * n // nc, (c + 1) * n // nc):
                 e = color_elems[lo + i]
                 elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, K,
@@ -189,7 +214,7 @@ def elastic_element_hessians(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project
     for i in prange(elems.shape[0]):
         e = elems[i]
         scratch = np.empty(ELEMENT_SCRATCH)
-        work = np.empty(MODES_WORK)
+        work = np.empty(ELEMENT_WORK)
         elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, Ke[i],
                                 scratch, work)
 

@@ -214,6 +214,166 @@ def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work, want_modes=True):
     return psi
 
 
+@njit(**JIT_FLAGS)
+def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
+    """Energy density and first Piola stress ``P`` (3, 3) at ``F`` from the invariants, without
+    an SVD (``work`` >= 18 floats of scratch): ``(psi, True)``, or ``(0, False)`` (``P`` untouched) when a singular value of F may be
+    below the clamp ``eps`` and :func:`mr_modes` must decide.
+
+    No clamp is active when ``det F > 0`` and the smallest eigenvalue of ``C = F^T F`` is at least
+    ``eps^2``; since ``l2 l3 <= (tr C / 2)^2`` for the other two, ``l1 >= 4 det C / (tr C)^2``, so
+    ``2 J / I1 >= eps`` suffices (all but badly squashed tets). Then, with ``cof F = J F^-T``,
+
+        P = 2 c10 J^(-2/3) F + 2 c01 J^(-4/3) (I1 F - F C)
+            + [-(2/3) c10 J^(-2/3) I1 - (4/3) c01 J^(-4/3) I2 + J U'(J)] cof F / J,
+
+    the same energy as the singular-value form (PHYSICS.md section 1), at a fraction of its cost."""
+    # cofactor matrix: cof[k, l] = d det F / d F[k, l]
+    c00 = F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]
+    c01_ = F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]
+    c02 = F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]
+    J = F[0, 0] * c00 + F[0, 1] * c01_ + F[0, 2] * c02
+    I1 = 0.0
+    for k in range(3):
+        for l in range(3):
+            I1 += F[k, l] * F[k, l]
+    if not (J > 0.0) or 2.0 * J < eps * I1:
+        return 0.0, False
+    c10_ = F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]
+    c11 = F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]
+    c12 = F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]
+    c20 = F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]
+    c21 = F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]
+    c22 = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    # C = F^T F, FC = F C, I2 = (I1^2 - tr C^2) / 2
+    trC2 = 0.0
+    C = work[0:9].reshape((3, 3))
+    cof = work[9:18].reshape((3, 3))
+    cof[0, 0], cof[0, 1], cof[0, 2] = c00, c01_, c02
+    cof[1, 0], cof[1, 1], cof[1, 2] = c10_, c11, c12
+    cof[2, 0], cof[2, 1], cof[2, 2] = c20, c21, c22
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
+    for i in range(3):
+        for j in range(3):
+            trC2 += C[i, j] * C[j, i]
+    I2 = 0.5 * (I1 * I1 - trC2)
+    q = J ** (-2.0 / 3.0)
+    q2 = q * q
+    if vol == 0:
+        L = math.log(J)
+        U = 0.5 * kappa * L * L
+        JdU = kappa * L
+    else:
+        U = 0.5 * kappa * (J - 1.0) ** 2
+        JdU = kappa * (J - 1.0) * J
+    psi = c10 * (q * I1 - 3.0) + c01 * (q2 * I2 - 3.0) + U
+    a = 2.0 * c10 * q + 2.0 * c01 * q2 * I1
+    b = -2.0 * c01 * q2
+    s = (-(2.0 / 3.0) * c10 * q * I1 - (4.0 / 3.0) * c01 * q2 * I2 + JdU) / J
+    for k in range(3):
+        for l in range(3):
+            FC = F[k, 0] * C[0, l] + F[k, 1] * C[1, l] + F[k, 2] * C[2, l]
+            P[k, l] = a * F[k, l] + b * FC + s * cof[k, l]
+    return psi, True
+
+
+@njit(**JIT_FLAGS)
+def _levi(k, m):
+    """``(p, sign)`` with ``eps_kmp = sign`` for ``k != m`` (p the third index)."""
+    return 3 - k - m, (1.0 if (m - k) % 3 == 1 else -1.0)
+
+
+@njit(**JIT_FLAGS)
+def mr_tangent(F, c10, c01, kappa, vol, eps, D, work):
+    """The true (unprojected) tangent ``D (9, 9) = dP/dF`` (row-major vec of P and F) from the
+    invariants, without an SVD; False (``D`` untouched) when a clamp may be active (the test of
+    :func:`mr_stress`). ``work`` >= 36 floats of scratch.
+
+    With the invariants ``I = (I1, I2, J)`` and their gradients ``G1 = 2F``, ``G2 = 2(I1 F - F C)``,
+    ``G3 = cof F``: ``D = sum_ij psi_ij G_i (x) G_j + sum_i psi_i d2I_i/dF2``, where
+    ``d2I1 = 2 Id``, ``d2I2[dF] = 2(2 (F:dF) F + I1 dF - dF C - F dF^T F - F F^T dF)`` and
+    ``d2J[dF]_kl = eps_kmp eps_lnq F_pq dF_mn``; psi depends on I1 and I2 only linearly."""
+    c00 = F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]
+    c01_ = F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]
+    c02 = F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]
+    J = F[0, 0] * c00 + F[0, 1] * c01_ + F[0, 2] * c02
+    I1 = 0.0
+    for k in range(3):
+        for l in range(3):
+            I1 += F[k, l] * F[k, l]
+    if not (J > 0.0) or 2.0 * J < eps * I1:
+        return False
+    C = work[0:9].reshape((3, 3))     # F^T F
+    B = work[9:18].reshape((3, 3))    # F F^T
+    G2 = work[18:27].reshape((3, 3))  # I1 F - F C (half the gradient of I2)
+    G3 = work[27:36].reshape((3, 3))  # cof F
+    G3[0, 0], G3[0, 1], G3[0, 2] = c00, c01_, c02
+    G3[1, 0] = F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]
+    G3[1, 1] = F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]
+    G3[1, 2] = F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]
+    G3[2, 0] = F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]
+    G3[2, 1] = F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]
+    G3[2, 2] = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
+            B[i, j] = F[i, 0] * F[j, 0] + F[i, 1] * F[j, 1] + F[i, 2] * F[j, 2]
+    trC2 = 0.0
+    for i in range(3):
+        for j in range(3):
+            trC2 += C[i, j] * C[j, i]
+    I2 = 0.5 * (I1 * I1 - trC2)
+    for k in range(3):
+        for l in range(3):
+            G2[k, l] = I1 * F[k, l] - (F[k, 0] * C[0, l] + F[k, 1] * C[1, l] + F[k, 2] * C[2, l])
+    q = J ** (-2.0 / 3.0)
+    q2 = q * q
+    iJ = 1.0 / J
+    if vol == 0:
+        L = math.log(J)
+        dU = kappa * L * iJ
+        ddU = kappa * (1.0 - L) * iJ * iJ
+    else:
+        dU = kappa * (J - 1.0)
+        ddU = kappa
+    p1 = c10 * q
+    p2 = c01 * q2
+    pJ = -(2.0 / 3.0) * p1 * I1 * iJ - (4.0 / 3.0) * p2 * I2 * iJ + dU
+    p1J = -(2.0 / 3.0) * p1 * iJ
+    p2J = -(4.0 / 3.0) * p2 * iJ
+    pJJ = (10.0 / 9.0) * p1 * I1 * iJ * iJ + (28.0 / 9.0) * p2 * I2 * iJ * iJ + ddU
+    for k in range(3):
+        for l in range(3):
+            r = 3 * k + l
+            g1 = 2.0 * F[k, l]
+            g2 = 2.0 * G2[k, l]
+            g3 = G3[k, l]
+            for m in range(3):
+                for n in range(3):
+                    h1 = 2.0 * F[m, n]
+                    h2 = 2.0 * G2[m, n]
+                    h3 = G3[m, n]
+                    v = p1J * (g1 * h3 + g3 * h1) + p2J * (g2 * h3 + g3 * h2) + pJJ * g3 * h3
+                    # d2 I2: 2 (2 F_kl F_mn + I1 d_km d_ln - d_km C_nl - F_kn F_ml - B_km d_ln)
+                    t = 2.0 * F[k, l] * F[m, n] - F[k, n] * F[m, l]
+                    if k == m:
+                        t -= C[n, l]
+                    if l == n:
+                        t -= B[k, m]
+                        if k == m:
+                            t += I1
+                            v += 2.0 * p1
+                    v += 2.0 * p2 * t
+                    if k != m and l != n:
+                        pp, sk = _levi(k, m)
+                        qq, sl = _levi(l, n)
+                        v += pJ * sk * sl * F[pp, qq]
+                    D[r, 3 * m + n] = v
+    return True
+
+
 @njit(parallel=True, **JIT_FLAGS)
 def mr_density_batch(F, c10, c01, kappa, vol, eps, psi, P):
     """Energy density ``psi`` (k,) and first Piola stress ``P`` (k, 3, 3) for ``F`` (k, 3, 3);
