@@ -247,9 +247,14 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
     its own on to the next)."""
     options = options or TrackOptions()
     fits: list[Fit] = []
+    targets = np.asarray(targets, dtype=np.float64)
+    # a tracked frame (one with the previous frame's Jacobian) screens for outliers on the first
+    # step's linear prediction, which lands close to the fit: the outliers then cost no refit
+    screen = functools.partial(_outliers, target=targets, options=options) \
+        if options.robust and jacobian is not None else None
 
-    def solve(target, c, x, J):
-        fit = fit_frame(sim, target, c, x, space, options.fit, jacobian=J)
+    def solve(target, c, x, J, screen=None):
+        fit = fit_frame(sim, target, c, x, space, options.fit, jacobian=J, screen=screen)
         fits.append(fit)
         w = np.ones(len(target))
         for _ in range(options.irls_steps if options.loss != "l2" else 0):
@@ -261,10 +266,9 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
             fits.append(fit)
         return fit
 
-    targets = np.asarray(targets, dtype=np.float64)
-    fit = solve(targets, controls, x0, jacobian)
+    fit = solve(targets, controls, x0, jacobian, screen)
     outliers = _outliers(fit.markers, targets, options)
-    if outliers and options.robust:
+    if outliers != fit.report.screened and options.robust:   # the screen missed some, or was wrong
         cleaned = targets.copy()
         cleaned[outliers] = np.nan
         fit = solve(cleaned, fit.controls, fit.x, fit.jacobian)

