@@ -342,11 +342,8 @@ def cmd_solve_mocap(args) -> int:
     # rebind the model's markers to the capture's neutral frames
     neutral = P[frame_mask(args.bind_frames, frames, "--bind-frames")] if args.bind_frames else None
     if args.frames:
-        lo, _, hi = args.frames.partition(":")
-        keep = (frames >= int(lo or frames.min())) & (frames <= int(hi or frames.max()))
+        keep = frame_mask(args.frames, frames, "--frames")
         frames, P = frames[keep], P[keep]
-        if not len(frames):
-            raise FacesimError(f"--frames {args.frames}: no frames of {args.markers} in that range")
     # workers build their simulator from the spec (model path, options); built here first, so a bad
     # jaw model fails before any worker starts
     spec = SimulatorSpec.of(args.model, EquilibriumOptions(newton=NewtonOptions(linear_solver=args.solver)),
@@ -354,7 +351,7 @@ def cmd_solve_mocap(args) -> int:
     spec.build()
     options = TrackOptions(fit=FitOptions(noise=args.noise, max_steps=args.max_steps), head=args.head,
                            robust=not args.no_robust, loss=args.loss, loss_scale=args.loss_scale,
-                           chunk_size=args.chunk_size)
+                           chunk_size=args.chunk_size, head_smoothing=args.head_smoothing)
     parallel = args.workers is not None or args.scheduler is not None
     with dask_client(args.workers, args.scheduler) if parallel else nullcontext() as client:
         s = track(spec, frames, P, args.output, options=options, resume=args.resume, progress=not args.quiet,
@@ -364,7 +361,8 @@ def cmd_solve_mocap(args) -> int:
         from facesim.inverse.render import render_solve
 
         sim = spec.build() if neutral is None else bind_neutral(spec.build(), neutral, args.head)[0]   # as solved
-        video = render_solve(sim, args.output, frames, P, head=args.head, fps=data.rate or 30.0,
+        video = render_solve(sim, args.output, frames, P, head=args.head, head_smoothing=args.head_smoothing,
+                             fps=data.rate or 30.0,
                              progress=not args.quiet)
         print(f"video: {video}")
     if s["outliers"]:
@@ -586,7 +584,13 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--head", choices=("procrustes", "none"), default="procrustes",
                        help="stabilise the head with the head markers, or take the capture as already stabilised "
                             "(default: %(default)s)")
-    solve.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames (inclusive)")
+    solve.add_argument("--head-smoothing", type=int, default=0, metavar="FRAMES",
+                       help="smooth the head stabilisation over this many frames (odd, >= 3; 0: off): the few head "
+                            "markers' noise otherwise shakes the whole face; keep the window shorter than the "
+                            "head's fastest motion (default: %(default)s)")
+    solve.add_argument("--frames", metavar="FIRST:LAST",
+                       help="solve only these frames (inclusive; either end may be left out, e.g. 10: ; one number: "
+                            "that frame)")
     solve.add_argument("--bind-frames", metavar="FIRST:LAST",
                        help="frames of the capture showing the neutral face: the model's markers are first bound "
                             "to the skin where these frames put them (per-marker median; Sifakis 2005), instead "

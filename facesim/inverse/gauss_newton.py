@@ -80,7 +80,10 @@ class FitOptions:
     the paper); jacobian_drift : secant mismatch of a step above which the next step evaluates the
     Jacobian anew; chord : solve trial equilibria by chord iterations on the Jacobian's factorised
     tangent first; resolution : also stop when the next step would move the controls by less than
-    this many standard deviations of their estimate under marker noise ``noise``. See the module doc."""
+    this many standard deviations of their estimate under marker noise ``noise``; jacobian_rtol : CG
+    tolerance of each Jacobian column when it is solved iteratively (above ``DIRECT_BELOW`` unknowns;
+    a Gauss-Newton step needs a few digits, and the secant updates are approximate anyway). See the
+    module doc."""
 
     max_steps: int = 5
     tolerance: float = 1e-3
@@ -99,6 +102,7 @@ class FitOptions:
     jacobian_drift: float = 0.1
     chord: bool = True
     resolution: float = 1.5
+    jacobian_rtol: float = 1e-6   # CG tolerance per Jacobian column (AMG path; direct solves are exact)
 
     def __post_init__(self):
         if not (self.growth > 1.0 and self.final_ratio > 0 and self.start_ratio > 0 and self.noise > 0):
@@ -108,9 +112,9 @@ class FitOptions:
         if self.line_search not in ("ratio", "golden"):
             raise FacesimError(f"line_search: expected 'ratio' or 'golden', got {self.line_search!r}")
         if not (0 < self.accept_ratio < 1 and self.jacobian_max_age >= 0 and self.jacobian_drift > 0
-                and self.resolution >= 0):
+                and self.resolution >= 0 and 0 < self.jacobian_rtol < 1):
             raise FacesimError("FitOptions: 0 < accept_ratio < 1, jacobian_max_age >= 0, jacobian_drift > 0, "
-                               "resolution >= 0")
+                               "resolution >= 0, 0 < jacobian_rtol < 1")
 
 
 @dataclass
@@ -323,7 +327,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     def exact_jacobian(c, x):
         t = time.perf_counter()
         J = equilibrium_jacobian(sim, space.apply(base, c), x, space, extra_terms=extra_terms,
-                                 linear_solver=options.linear_solver)
+                                 linear_solver=options.linear_solver, rtol=options.jacobian_rtol)
         rep.jacobians += 1
         rep.linear_solves += len(J.linear_iterations)
         clock["jacobian"] += time.perf_counter() - t

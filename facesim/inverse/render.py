@@ -127,7 +127,7 @@ class _Panel:
 
 
 def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: float = 30.0, size=(1280, 640),
-                 view: str = "front", progress: bool = True) -> Path:
+                 view: str = "front", progress: bool = True, head_smoothing: int = 0) -> Path:
     """Render the solve in ``out_dir`` side by side with its capture and make the video (module doc).
 
     Parameters
@@ -136,7 +136,8 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
     out_dir : the folder of the solve (``activations.csv``, ``jaw.csv``, ``residuals.csv``,
         ``report.json``); pictures and video go to ``out_dir/render/``.
     frames : (F,) frame numbers of ``P``; P : (F, r, 3) the capture in the model's marker order,
-        mm, NaN missing, as given to ``track`` (``head="procrustes"`` stabilises it the same way).
+        mm, NaN missing, as given to ``track`` (``head="procrustes"`` stabilises it the same way,
+        over ``head_smoothing`` frames as the solve did).
     fps : video frame rate, Hz; size : (width, height) of a picture in pixels (two panels);
     view : camera of both panels, one of :data:`facesim.viz.render.VIEWS`.
 
@@ -163,7 +164,7 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
     if P.shape != (len(frames), model.n_markers, 3):
         raise FacesimError(f"markers: expected ({len(frames)}, {model.n_markers}, 3) positions, got {P.shape}")
     if head == "procrustes":
-        P, _ = stabilise(model, P)
+        P, _ = stabilise(model, P, head_smoothing)
     solved, controls = read_solution(out, model)
     row = {int(f): i for i, f in enumerate(frames)}
     pick = [i for i, f in enumerate(solved) if int(f) in row]

@@ -123,16 +123,18 @@ def test_demo_solves_the_shipped_clip(tmp_path, monkeypatch, capsys):
     assert DEMO_CLIP.is_file() and truth_path(DEMO_CLIP).is_file() and DEMO_CLIP.with_suffix(".trc").is_file()
     monkeypatch.delenv("FACESIM_MODEL", raising=False)
     out = tmp_path / "demo"
-    assert main(["demo", "-o", str(out), "--frames", "2:5", "-q"]) == 0
+    assert main(["demo", "-o", str(out), "--frames", "5:10", "-q"]) == 0
     printed = capsys.readouterr().out
     assert "marker RMS" in printed and "activations" in printed and "jaw" in printed
     s = json.loads((out / "recovery.json").read_text())
-    assert s["frames"] == [2, 3, 4, 5]
+    assert s["frames"] == [5, 6, 7, 8, 9, 10]
     # The issue's bound: marker RMS <= 1.5x the noise (0.87 mm RMS in 3-D) on markers made on a
     # finer mesh. It holds because the markers are first bound to the coarse skin on the clip's
-    # neutral frames: with the model's own placement the two meshes disagree by up to 9 mm at rest
-    # (a skin fold projects differently) and the RMS was 1.4-1.7 mm. A solve that fails to follow
-    # leaves several mm, and saturated or idle muscles activation errors ~1.
+    # neutral frames (with the model's own placement the two meshes disagree by up to 9 mm at rest,
+    # a skin fold projects differently, and the RMS was 1.4-1.7 mm) and the head stabilisation is
+    # smoothed over time (unsmoothed, the six head markers' noise shook single frames to 1.9 mm).
+    # A solve that fails to follow leaves several mm, and saturated or idle muscles activation
+    # errors ~1.
     assert s["marker_rms"]["max"] <= 1.5 * s["marker_rms"]["noise_rms"], s["marker_rms"]
     assert s["activation"]["mean"] < 0.08 and s["activation"]["max"] < 0.5
     assert s["jaw"]["opening_deg_max"] < 1.0
