@@ -67,6 +67,7 @@ def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool,
     from facesim.controls import Controls
     from facesim.fem.equilibrium import FaceSimulator
     from facesim.inverse import ControlSpace, FitOptions, fit_frame
+    from facesim.inverse.jacobian import default_jacobian_solver
     from facesim.kinematics.condyle import SlidingCondyleJaw
     from facesim.model import load_model
 
@@ -88,7 +89,8 @@ def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool,
         targets.append(model.marker_positions(x) + 0.5 * rng.normal(size=(model.n_markers, 3)))
     print(f"{Path(path).name}: {model.n_tets:,} tets ({model.n_simulated:,} simulated), "
           f"{sim.system.n_dofs:,} unknowns, {model.n_muscles} muscles, {model.n_markers} markers; "
-          f"synthetic capture {time.perf_counter() - t:.1f} s", flush=True)
+          f"synthetic capture {time.perf_counter() - t:.1f} s; Jacobian solver "
+          f"{fit_options.get('linear_solver') or default_jacobian_solver(sim.system.n_dofs)}", flush=True)
     options = FitOptions(noise=0.5, **fit_options)
     paper = FitOptions(noise=0.5, line_search="golden", jacobian_max_age=0, chord=False)
     neutral = Controls(np.zeros(model.n_muscles), jaw=np.zeros(space.n_jaw))
@@ -157,10 +159,13 @@ def main(argv=None):
     ap.add_argument("--jacobian-max-age", type=int, default=None, help="FitOptions.jacobian_max_age")
     ap.add_argument("--jacobian-drift", type=float, default=None, help="FitOptions.jacobian_drift")
     ap.add_argument("--resolution", type=float, default=None, help="FitOptions.resolution")
+    ap.add_argument("--linear-solver", choices=("direct", "pardiso", "amg"), default=None,
+                    help="the Jacobian's linear solver (default: PARDISO if installed, else SuperLU / AMG by size)")
     args = ap.parse_args(argv)
     fit_options = {k: v for k, v in (("jacobian_max_age", args.jacobian_max_age),
                                      ("jacobian_drift", args.jacobian_drift),
-                                     ("resolution", args.resolution)) if v is not None}
+                                     ("resolution", args.resolution),
+                                     ("linear_solver", args.linear_solver)) if v is not None}
     import numba
 
     if args.threads:

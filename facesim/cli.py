@@ -551,9 +551,9 @@ def build_parser() -> argparse.ArgumentParser:
     again.add_argument("--overwrite", action="store_true",
                        help="replace the results of an earlier run in OUT_DIR (without --resume or --overwrite, a "
                             "folder holding a run is an error)")
-    simulate.add_argument("--solver", choices=("amg", "direct"), default="amg",
-                          help="linear solver of the Newton steps: algebraic multigrid + CG, or sparse LU "
-                               "(default: %(default)s)")
+    simulate.add_argument("--solver", choices=("amg", "direct", "pardiso"), default="amg",
+                          help="linear solver of the Newton steps: algebraic multigrid + CG, sparse LU (SuperLU), "
+                               "or MKL PARDISO (pip install 'facesim[pardiso]') (default: %(default)s)")
     simulate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     simulate.set_defaults(func=cmd_simulate)
 
@@ -615,7 +615,9 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--chunk-size", type=int, metavar="FRAMES",
                        help="frames per chunk, each starting cold (default: the frames divided evenly among the "
                             "workers; one chunk without --workers/--scheduler)")
-    solve.add_argument("--solver", choices=("amg", "direct"), default="amg", help="linear solver of the equilibria")
+    solve.add_argument("--solver", choices=("amg", "direct", "pardiso"), default="amg",
+                       help="linear solver of the equilibria (the Jacobians use MKL PARDISO when pypardiso is "
+                            "installed, else SuperLU or, above 150K unknowns, AMG) (default: %(default)s)")
     solve.add_argument("--resume", action="store_true", help="continue the run in OUT_DIR")
     solve.add_argument("--render", action="store_true",
                        help="also render the solved frames side by side with the capture (left: the captured "

@@ -151,3 +151,27 @@ def test_near_equilibrium_reuses_the_tangent(box_model):
     far = Controls([1.0, 1.0], jaw=[0.4, 8.0, -8.0])
     x_far, _, _, ok_far = near_equilibrium(sim, far, eq.x, J.tangent, max_iterations=2)
     assert not ok_far and np.isfinite(x_far).all()
+
+
+def test_pardiso_superlu_and_amg_jacobians_agree(box_model):
+    """The three linear solvers behind the Jacobian give the same columns, and the PARDISO
+    factorisation serves near_equilibrium's chord iterations like SuperLU's."""
+    pytest.importorskip("pypardiso")
+    from facesim.inverse.jacobian import near_equilibrium
+
+    sim = FaceSimulator(box_model, EquilibriumOptions(newton=TIGHT), jaw_model=SlidingCondyleJaw(box_model.jaw))
+    controls = Controls([0.4, 0.3], jaw=[0.1, 2.0, 1.0])
+    x = sim.equilibrium(controls).x
+    space = ControlSpace.of(sim)
+    J = {kind: equilibrium_jacobian(sim, controls, x, space, linear_solver=kind) for kind in ("direct", "pardiso", "amg")}
+    scale = np.abs(J["direct"].dP).max()
+    assert np.abs(J["pardiso"].dP - J["direct"].dP).max() < 1e-10 * scale
+    assert np.abs(J["amg"].dP - J["direct"].dP).max() < 1e-6 * scale
+    dc = np.array([0.02, -0.02, 0.005, 0.1, 0.1])
+    near = space.apply(controls, space.vector(controls) + dc)
+    xp, its, _, ok = near_equilibrium(sim, near, J["pardiso"].predict(dc), J["pardiso"].tangent)
+    xs, _, _, ok_s = near_equilibrium(sim, near, J["direct"].predict(dc), J["direct"].tangent)
+    assert ok and ok_s and its >= 1
+    np.testing.assert_allclose(xp, xs, atol=1e-6)
+    with pytest.raises(FacesimError, match="linear_solver"):
+        equilibrium_jacobian(sim, controls, x, space, linear_solver="mumps")
