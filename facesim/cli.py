@@ -191,12 +191,23 @@ def cmd_model_build(args) -> int:
     if build_head is None:
         raise FacesimError("model build: this installation has no anatomy builder (facesim.anatomy.build_head)")
     mesh = None
+    if args.refine and not args.mesh_from:
+        raise FacesimError("--refine: refines the mesh of --mesh-from OLD.npz; name that model")
+    if args.refine < 0:
+        raise FacesimError(f"--refine: expected a number of 1:8 refinements >= 0, got {args.refine}")
     if args.mesh_from:
         src = _load(args.mesh_from)
-        if src.meta.get("seed") not in (None, args.seed) or src.meta.get("resolution") not in (None, args.resolution):
+        # a refined mesh may serve another resolution (e.g. paper from medium); its seed must match
+        same_resolution = args.refine or src.meta.get("resolution") in (None, args.resolution)
+        if src.meta.get("seed") not in (None, args.seed) or not same_resolution:
             raise FacesimError(f"{args.mesh_from}: --mesh-from model was built with seed {src.meta.get('seed')} at "
                                f"resolution {src.meta.get('resolution')}, expected seed {args.seed} at {args.resolution}")
         mesh = (src.X, src.tets)
+        if args.refine:
+            from facesim.anatomy.meshing import refine_tets
+
+            for _ in range(args.refine):
+                mesh = refine_tets(*mesh)
     t0 = time.perf_counter()
 
     def say(msg):
@@ -204,6 +215,8 @@ def cmd_model_build(args) -> int:
 
     model = build_head(resolution=args.resolution, seed=args.seed, progress=None if args.quiet else say,
                        mesh=mesh)
+    if args.refine:
+        model.meta["mesher"] = f"{Path(args.mesh_from).name}'s mesh refined 1:8 {args.refine}x (meshing.refine_tets)"
     seconds = time.perf_counter() - t0
     model.save(out)
     print(f"built {args.resolution} head (seed {args.seed}) in {seconds:.1f} s: {model.n_nodes:,} nodes, "
@@ -449,6 +462,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="reuse the flesh tet mesh of an earlier model of the same seed and resolution instead "
                             "of running fTetWild (whose output differs from run to run): the rebuilt model is "
                             "then identical to OLD.npz's arrays")
+    build.add_argument("--refine", type=int, default=0, metavar="N",
+                       help="refine the --mesh-from mesh N times 1:8 (edge midpoints; deterministic, no fTetWild), "
+                            "e.g. a paper-size model from the medium one: --resolution paper --mesh-from "
+                            "meshes/face_medium.npz --refine 1 (default: %(default)s)")
     build.add_argument("-q", "--quiet", action="store_true", help="no progress output while building")
     build.set_defaults(func=cmd_model_build)
 

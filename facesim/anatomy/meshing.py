@@ -97,6 +97,40 @@ def check_tet_mesh(X, T) -> tuple[np.ndarray, np.ndarray]:
     return X, T
 
 
+def refine_tets(X: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform 1:8 ("red") refinement of the tet mesh ``X (n, 3)``, ``T (m, 4)``: a node at the
+    midpoint of every edge, four corner tets per tet and the inner octahedron cut along its
+    shortest diagonal into four more (the best-shaped of the three choices, so the quality stays
+    bounded under repeated refinement). Every child has an eighth of its parent's volume and
+    positive orientation; the boundary stays the same surface. Deterministic: a way to a finer
+    model that does not run fTetWild again (``facesim model build --mesh-from M.npz --refine``).
+    Returns ``(X (n + edges, 3), T (8 m, 4) int32)``; tet ``8 k + j`` is a child of tet ``k``."""
+    X = np.asarray(X, dtype=np.float64)
+    T = np.asarray(T, dtype=np.int64)
+    pairs = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+    edges = np.sort(T[:, pairs].reshape(-1, 2), axis=1)
+    unique, inverse = np.unique(edges, axis=0, return_inverse=True)
+    mid = len(X) + inverse.reshape(-1, 6)                 # midpoint node of each tet's six edges
+    Xr = np.concatenate([X, 0.5 * (X[unique[:, 0]] + X[unique[:, 1]])])
+    v0, v1, v2, v3 = T.T
+    m01, m02, m03, m12, m13, m23 = mid.T
+    corners = [(v0, m01, m02, m03), (m01, v1, m12, m13), (m02, m12, v2, m23), (m03, m13, m23, v3)]
+    # the octahedron's three diagonals, each with its equator as a cycle (opposite pairs apart)
+    diagonals = [((m01, m23), (m02, m03, m13, m12)), ((m02, m13), (m01, m03, m23, m12)),
+                 ((m03, m12), (m01, m02, m23, m13))]
+    length = np.stack([np.linalg.norm(Xr[a] - Xr[b], axis=1) for (a, b), _ in diagonals], axis=1)
+    pick = np.argmin(length, axis=1)
+    inner = []
+    for q in range(4):
+        cols = []
+        for slot in range(4):
+            choice = [(a, b, ring[q], ring[(q + 1) % 4])[slot] for (a, b), ring in diagonals]
+            cols.append(np.choose(pick, choice))
+        inner.append(tuple(cols))
+    Tr = np.stack([np.stack(t, axis=1) for t in corners + inner], axis=1).reshape(-1, 4)
+    return Xr, positively_oriented(Xr, Tr.astype(np.int32))
+
+
 def split_pinched_nodes(X: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Give every node one copy per face-connected fan of its tets.
 
