@@ -434,7 +434,7 @@ def build_parser() -> argparse.ArgumentParser:
                "Regenerate the clip: 'python -m facesim.mocap.demo --make'.")
     demo.add_argument("-o", "--output", default="facesim_demo", metavar="OUT_DIR",
                       help="folder for the results (default: %(default)s)")
-    demo.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames of the clip (inclusive), e.g. 0:5")
+    demo.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames of the clip (inclusive), e.g. 5:15")
     demo.add_argument("--clip", metavar="F.c3d",
                       help="another clip made by 'python -m facesim.mocap.demo --make' (its truth F_truth.npz beside "
                            "it; default: the shipped meshes/demo_clip.c3d)")

@@ -215,10 +215,35 @@ def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work, want_modes=True):
 
 
 @njit(**JIT_FLAGS)
+def _unclamped_start(F, eps, cof):
+    """``(J, I1, ok)`` of ``F``, with ``cof (3, 3)`` = cof F filled when ``ok``: no singular value
+    of F can be below the clamp ``eps`` (``det F > 0`` and ``2 J / I1 >= eps``, see :func:`mr_stress`)."""
+    c00 = F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]
+    c01 = F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]
+    c02 = F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]
+    J = F[0, 0] * c00 + F[0, 1] * c01 + F[0, 2] * c02
+    I1 = 0.0
+    for k in range(3):
+        for l in range(3):
+            I1 += F[k, l] * F[k, l]
+    if not (J > 0.0) or 2.0 * J < eps * I1:
+        return J, I1, False
+    cof[0, 0], cof[0, 1], cof[0, 2] = c00, c01, c02
+    cof[1, 0] = F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]
+    cof[1, 1] = F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]
+    cof[1, 2] = F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]
+    cof[2, 0] = F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]
+    cof[2, 1] = F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]
+    cof[2, 2] = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    return J, I1, True
+
+
+@njit(**JIT_FLAGS)
 def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
     """Energy density and first Piola stress ``P`` (3, 3) at ``F`` from the invariants, without
-    an SVD (``work`` >= 18 floats of scratch): ``(psi, True)``, or ``(0, False)`` (``P`` untouched) when a singular value of F may be
-    below the clamp ``eps`` and :func:`mr_modes` must decide.
+    an SVD (``work`` >= 18 floats of scratch): ``(psi, True)``, or ``(0, False)`` (``P``
+    untouched) when a singular value of F may be below the clamp ``eps`` and :func:`mr_modes`
+    must decide.
 
     No clamp is active when ``det F > 0`` and the smallest eigenvalue of ``C = F^T F`` is at least
     ``eps^2``; since ``l2 l3 <= (tr C / 2)^2`` for the other two, ``l1 >= 4 det C / (tr C)^2``, so
@@ -228,30 +253,13 @@ def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
             + [-(2/3) c10 J^(-2/3) I1 - (4/3) c01 J^(-4/3) I2 + J U'(J)] cof F / J,
 
     the same energy as the singular-value form (PHYSICS.md section 1), at a fraction of its cost."""
-    # cofactor matrix: cof[k, l] = d det F / d F[k, l]
-    c00 = F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]
-    c01_ = F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]
-    c02 = F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]
-    J = F[0, 0] * c00 + F[0, 1] * c01_ + F[0, 2] * c02
-    I1 = 0.0
-    for k in range(3):
-        for l in range(3):
-            I1 += F[k, l] * F[k, l]
-    if not (J > 0.0) or 2.0 * J < eps * I1:
-        return 0.0, False
-    c10_ = F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]
-    c11 = F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]
-    c12 = F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]
-    c20 = F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]
-    c21 = F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]
-    c22 = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
-    # C = F^T F, FC = F C, I2 = (I1^2 - tr C^2) / 2
-    trC2 = 0.0
     C = work[0:9].reshape((3, 3))
     cof = work[9:18].reshape((3, 3))
-    cof[0, 0], cof[0, 1], cof[0, 2] = c00, c01_, c02
-    cof[1, 0], cof[1, 1], cof[1, 2] = c10_, c11, c12
-    cof[2, 0], cof[2, 1], cof[2, 2] = c20, c21, c22
+    J, I1, ok = _unclamped_start(F, eps, cof)
+    if not ok:
+        return 0.0, False
+    # C = F^T F, FC = F C, I2 = (I1^2 - tr C^2) / 2
+    trC2 = 0.0
     for i in range(3):
         for j in range(3):
             C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
@@ -295,27 +303,13 @@ def mr_tangent(F, c10, c01, kappa, vol, eps, D, work):
     ``G3 = cof F``: ``D = sum_ij psi_ij G_i (x) G_j + sum_i psi_i d2I_i/dF2``, where
     ``d2I1 = 2 Id``, ``d2I2[dF] = 2(2 (F:dF) F + I1 dF - dF C - F dF^T F - F F^T dF)`` and
     ``d2J[dF]_kl = eps_kmp eps_lnq F_pq dF_mn``; psi depends on I1 and I2 only linearly."""
-    c00 = F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]
-    c01_ = F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]
-    c02 = F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]
-    J = F[0, 0] * c00 + F[0, 1] * c01_ + F[0, 2] * c02
-    I1 = 0.0
-    for k in range(3):
-        for l in range(3):
-            I1 += F[k, l] * F[k, l]
-    if not (J > 0.0) or 2.0 * J < eps * I1:
-        return False
     C = work[0:9].reshape((3, 3))     # F^T F
     B = work[9:18].reshape((3, 3))    # F F^T
     G2 = work[18:27].reshape((3, 3))  # I1 F - F C (half the gradient of I2)
     G3 = work[27:36].reshape((3, 3))  # cof F
-    G3[0, 0], G3[0, 1], G3[0, 2] = c00, c01_, c02
-    G3[1, 0] = F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]
-    G3[1, 1] = F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]
-    G3[1, 2] = F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]
-    G3[2, 0] = F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]
-    G3[2, 1] = F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]
-    G3[2, 2] = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    J, I1, ok = _unclamped_start(F, eps, G3)
+    if not ok:
+        return False
     for i in range(3):
         for j in range(3):
             C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]

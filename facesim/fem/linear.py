@@ -6,12 +6,13 @@ hierarchy is kept and reused while CG converges in few iterations; it is rebuilt
 next solve once CG needs more than ``rebuild_factor`` times the iterations per digit of residual
 reduction it needed right after a rebuild (at once if CG fails).
 Direct: SuperLU (scipy) on CSC, refactorised every call; fine to ~100K dofs and for many
-right-hand sides. Pardiso: the same, by MKL PARDISO (``pypardiso``, the optional extra
-``facesim[pardiso]``) on the upper triangle as a symmetric indefinite matrix: supernodal,
-METIS-ordered and threaded, ~8x faster to factorise than SuperLU on the medium face's tangent
-and the direct solver that still fits the paper-resolution face (benchmarks/RESULTS.md). The matrices are symmetric, so SuperLU runs in its symmetric mode (minimum
+right-hand sides. The matrices are symmetric, so SuperLU runs in its symmetric mode (minimum
 degree on A^T + A, diagonal pivots preferred): half the fill of the default column ordering
 and a 2-4x faster factorisation of the face's tangent (issue 5, benchmarks/bench_jacobian.py).
+Pardiso: the same, by MKL PARDISO (``pypardiso``, the optional extra ``facesim[pardiso]``) on
+the upper triangle as a symmetric indefinite matrix: supernodal, METIS-ordered and threaded,
+~8x faster to factorise than SuperLU on the medium face's tangent and the direct solver that
+still fits the paper-resolution face (benchmarks/RESULTS.md).
 
 BLAS threads: every solve runs with the BLAS limited to one thread (:func:`single_blas_thread`).
 OpenBLAS threads level-1 operations above 10,000 entries; CG does two dot products per
@@ -146,6 +147,7 @@ def factorize(A) -> spla.SuperLU:
 
 
 _MKL = None
+NO_PARDISO = "linear solver 'pardiso' needs the pypardiso package: pip install 'facesim[pardiso]'"
 
 
 def _mkl_threads(n: int):
@@ -165,12 +167,9 @@ def _mkl_threads(n: int):
 
 def _compute_threads() -> int:
     """Threads the process may use for one heavy kernel: numba's setting (one per dask worker)."""
-    try:
-        import numba
+    import numba
 
-        return max(1, int(numba.get_num_threads()))
-    except Exception:   # noqa: BLE001 -- numba is a dependency; be safe in odd embeddings
-        return 1
+    return int(numba.get_num_threads())
 
 
 def pardiso_available() -> bool:
@@ -191,8 +190,7 @@ class PardisoFactor:
         try:
             import pypardiso
         except ImportError:
-            raise FacesimError("linear solver 'pardiso' needs the pypardiso package: "
-                               "pip install 'facesim[pardiso]'") from None
+            raise FacesimError(NO_PARDISO) from None
         self.A = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
         self.A.sort_indices()
         self.shape = self.A.shape
@@ -257,6 +255,6 @@ def make_linear_solver(kind: str):
         return DirectSolver()
     if kind == "pardiso":
         if not pardiso_available():
-            raise FacesimError("linear solver 'pardiso' needs the pypardiso package: pip install 'facesim[pardiso]'")
+            raise FacesimError(NO_PARDISO)
         return DirectSolver(backend="pardiso")
     raise FacesimError(f"linear_solver: expected one of {SOLVERS}, got {kind!r}")

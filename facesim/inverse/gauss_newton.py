@@ -284,13 +284,19 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     if keep.sum() < 3:
         raise FacesimError(f"targets: only {int(keep.sum())} markers present; need at least 3")
     w = np.ones(model.n_markers) if weights is None else np.asarray(weights, dtype=np.float64)
-    w3 = np.repeat(w[keep], 3)
     space = space or ControlSpace.of(sim, jaw=bool(getattr(sim.jaw_model, "n_params", 0)))
     bounds = _Bounds(space, sim.jaw_model)
     rep = FitReport()
     clock = rep.timing
-    rows = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
-    noise_energy = 0.5 * options.noise ** 2 * float(w3.sum())   # the data term of a fit at the noise level
+
+    def kept(keep):
+        """Per-coordinate weights and rows of the markers ``keep`` selects, and the data term of a
+        fit at the noise level."""
+        w3 = np.repeat(w[keep], 3)
+        rows = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
+        return w3, rows, 0.5 * options.noise ** 2 * float(w3.sum())
+
+    w3, rows, noise_energy = kept(keep)
     # A step dc moves the estimate by |J dc|_W / noise = sqrt(2 predicted) / noise standard deviations
     # of its marker-noise covariance noise^2 (J^T W J)^-1. Stopping short of a step of k of them
     # leaves an error of at most k on top of the noise's, which is sqrt(n) of them over n controls
@@ -370,9 +376,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 rep.screened = sorted(dropped)
                 keep = keep.copy()
                 keep[dropped] = False
-                w3 = np.repeat(w[keep], 3)
-                rows = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
-                noise_energy = 0.5 * options.noise ** 2 * float(w3.sum())
+                w3, rows, noise_energy = kept(keep)
                 rep.objective[0] = objective(c, x, 0.0)
                 dc, mu, F, predicted, slope = linear_step(J, c, x)
         if predicted <= max(options.tolerance * max(F, noise_energy), resolution) or \

@@ -107,9 +107,8 @@ class TrackOptions:
             raise FacesimError(f"irls_steps: expected >= 1, got {self.irls_steps}")
         if self.chunk_size is not None and self.chunk_size < 1:
             raise FacesimError(f"chunk size: expected >= 1 frames, got {self.chunk_size}")
-        if self.head_smoothing and (self.head_smoothing < 3 or self.head_smoothing % 2 == 0):
-            raise FacesimError(f"head smoothing: expected 0 (off) or an odd window of >= 3 frames, "
-                               f"got {self.head_smoothing}")
+        if self.head_smoothing:
+            _check_window(self.head_smoothing)
 
     @property
     def scale(self) -> float:
@@ -234,6 +233,11 @@ def stabilise(model, P: np.ndarray, window: int = 0) -> tuple[np.ndarray, np.nda
     return out, Ts
 
 
+def _check_window(window: int) -> None:
+    if window < 3 or window % 2 == 0:
+        raise FacesimError(f"head smoothing: expected 0 (off) or an odd window of >= 3 frames, got {window}")
+
+
 def smooth_transforms(Ts: np.ndarray, window: int) -> np.ndarray:
     """Rigid transforms ``Ts (F, 4, 4)`` (NaN: unknown) smoothed over time: rotation vectors
     (relative to their mean rotation, so none is near pi) and translations filtered by a
@@ -242,8 +246,7 @@ def smooth_transforms(Ts: np.ndarray, window: int) -> np.ndarray:
     from scipy.signal import savgol_filter
     from scipy.spatial.transform import Rotation
 
-    if window < 3 or window % 2 == 0:
-        raise FacesimError(f"head smoothing: expected an odd window of >= 3 frames, got {window}")
+    _check_window(window)
     known = np.isfinite(Ts).all(axis=(1, 2))
     if known.sum() < 2:
         return Ts

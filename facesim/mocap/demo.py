@@ -94,6 +94,8 @@ DROPOUT_FRACTION = 0.005
 #: data pins the activation to about 0.1 or better. Weaker muscles are not identifiable from the
 #: markers (their activation trades off against others' at no cost in marker distance).
 VISIBLE_MM = 5.0
+#: Length (frames) and rate (Hz) of the shipped clip.
+CLIP_FRAMES, CLIP_FPS = 72, 24.0
 #: Frames the demo smooths the head stabilisation over (``solve-mocap --head-smoothing``): 0.375 s
 #: of the 24 Hz clip, shorter than its gentle head motion, long enough to average the noise of
 #: the six head markers (on the clip: stabilised markers 1.18 mm RMS from the truth unsmoothed,
@@ -192,8 +194,9 @@ def muscle_sensitivity(sim) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ making the clip
-def make_demo_clip(fine_model: FaceModel, out_dir, *, seed: int = 0, n_frames: int = 72, fps: float = 24.0,
-                   stem: str = "demo_clip", noise: float = NOISE_MM, keys=PERFORMANCE, progress: bool = True) -> dict:
+def make_demo_clip(fine_model: FaceModel, out_dir, *, seed: int = 0, n_frames: int = CLIP_FRAMES,
+                   fps: float = CLIP_FPS, stem: str = "demo_clip", noise: float = NOISE_MM, keys=PERFORMANCE,
+                   progress: bool = True) -> dict:
     """Play :data:`PERFORMANCE` on ``fine_model`` and write a spoiled capture of its markers.
 
     Parameters
@@ -508,8 +511,8 @@ def main(argv=None) -> int:
     ap.add_argument("--make", action="store_true", help="make the demo clip")
     ap.add_argument("--model", default=str(FINE_MODEL), help="the fine model the clip is made on (default: %(default)s)")
     ap.add_argument("--out", default=str(MESHES), help="folder for the clip files (default: %(default)s)")
-    ap.add_argument("--frames", type=int, default=72, help="number of frames (default: %(default)s)")
-    ap.add_argument("--fps", type=float, default=24.0, help="frame rate, Hz (default: %(default)s)")
+    ap.add_argument("--frames", type=int, default=CLIP_FRAMES, help="number of frames (default: %(default)s)")
+    ap.add_argument("--fps", type=float, default=CLIP_FPS, help="frame rate, Hz (default: %(default)s)")
     ap.add_argument("--wide-open", type=float, default=WIDE_OPEN,
                     help="jaw opening of 'jaw open wide', rad (default: %(default)s)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the noise, outliers and gaps (default: %(default)s)")
