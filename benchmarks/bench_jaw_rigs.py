@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from facesim.jaw import se3
+from facesim import se3
 from facesim.jaw.evaluate import (
     RIGS,
     compare_rigs,

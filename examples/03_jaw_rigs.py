@@ -33,8 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facesim import load_model
-from facesim.jaw import se3
+from facesim import load_model, se3
 from facesim.jaw.evaluate import (
     compare_rigs,
     front_weights,

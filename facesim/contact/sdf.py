@@ -22,7 +22,7 @@ import numpy as np
 from facesim._csv import frame_numbers, numbers, read_table
 from facesim._kernels import contact as K
 from facesim.errors import FacesimError
-from facesim.kinematics.frames import interpolate_rigid
+from facesim.se3 import interpolate_rigid
 
 _RIGID_TOL = 1e-6
 

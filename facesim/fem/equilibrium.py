@@ -19,8 +19,8 @@ from facesim.fem.material import DEFAULT_CLAMP
 from facesim.fem.newton import NewtonOptions, Problem, SolveReport, newton
 from facesim.fem.system import DofSystem, RestShape
 from facesim.fem.terms import ElasticTerm, MuscleTerm
-from facesim.kinematics.frames import interpolate_rigid, rigid_fit
 from facesim.model import FaceModel
+from facesim.se3 import interpolate_rigid, rigid_fit
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,7 @@ from facesim.errors import FacesimError
 from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
 from facesim.inverse.gauss_newton import Fit, FitOptions, fit_frame
 from facesim.inverse.jacobian import ControlSpace
-from facesim.kinematics.frames import rigid_fit
+from facesim.se3 import rigid_fit
 
 LOSSES = ("l2", "huber", "cauchy")
 LOG_COLUMNS = ("frame", "gn_steps", "equilibria", "newton_iterations", "linear_solves", "marker_rms",

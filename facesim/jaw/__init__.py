@@ -1,6 +1,5 @@
 """Data-driven jaw modelling, independent of the FEM (DESIGN.md ``jaw/``).
 
-- ``se3`` -- log/exp maps of SE(3), pose errors, geodesic interpolation.
 - ``frame`` -- the jaw coordinate frame (Zoss et al. 2018 section 3.1).
 - ``motion`` -- synthetic TMJ motion: subjects and capture-like sessions.
 - ``classic`` -- the traditional 1/3/5/6-DOF rigs with an optimised pivot (Zoss eqs. 1, 6-8).
@@ -37,8 +36,6 @@ def __getattr__(name):
         value = getattr(importlib.import_module(f"facesim.jaw.{_EXPORTS[name]}"), name)
         globals()[name] = value
         return value
-    if name == "se3":
-        return importlib.import_module("facesim.jaw.se3")
     raise AttributeError(f"module 'facesim.jaw' has no attribute {name!r}")
 
 
@@ -79,6 +76,5 @@ __all__ = [
     "mandible_points",
     "pose_errors",
     "retarget_posselt",
-    "se3",
     "subject_for",
 ]

@@ -30,8 +30,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw import se3
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.rigfile import load_rig, save_rig
 

@@ -231,7 +231,7 @@ def cmd_jaw_retarget(args) -> int:
 
 
 def cmd_jaw_pose(args) -> int:
-    from facesim.jaw import se3
+    from facesim import se3
     from facesim.jaw.posselt import PosseltRig
 
     rig = _load_rig(args.rig)
@@ -298,7 +298,7 @@ def cmd_jaw_generate(args) -> int:
         names = list(EXTREMES)
         poses = motion.poses(np.array([latent[n] for n in names]))
         if args.noise > 0:
-            from facesim.jaw import se3
+            from facesim import se3
 
             rng = np.random.default_rng(args.session)
             poses = poses @ se3.exp(np.c_[rng.normal(scale=args.noise / 100, size=(len(poses), 3)),

@@ -1,7 +1,7 @@
 """Judging jaw rigs: mandible points, the front-weighted error map, and train/test comparisons.
 
 The error of a rig on a pose is the weighted mean distance (mm) between the mandible points
-placed by the captured pose and by the rig's pose (:func:`facesim.jaw.se3.vertex_errors`).
+placed by the captured pose and by the rig's pose (:func:`facesim.se3.vertex_errors`).
 Following Zoss et al. 2018 Fig. 8 the weights favour the front of the mandible (chin and
 incisors), where errors are visible: ``front_weights`` ramps them quadratically from ``floor``
 at the back of the mandible to 1 at its front along the jaw frame's forward axis.
@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 from facesim.jaw.frame import JawFrame
 
 

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 
 
 def _unit(a, what: str) -> np.ndarray:

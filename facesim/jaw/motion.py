@@ -49,8 +49,8 @@ from typing import ClassVar
 import numpy as np
 from scipy.optimize import brentq
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 from facesim.model import JawGeometry
 
 UP = (0.0, 1.0, 0.0)           # facesim's skull up axis (README: y up, z toward the nose)

@@ -62,8 +62,8 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 from scipy.spatial import Delaunay, QhullError
 
+from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw import se3
 from facesim.jaw.classic import _second_moment_factor
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.rigfile import load_rig, save_rig

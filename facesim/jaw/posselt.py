@@ -61,8 +61,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline, make_lsq_spline
 from scipy.linalg import solve
 
+from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw import se3
 from facesim.jaw.evaluate import farthest_points
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import BORDER_CURVES

@@ -58,8 +58,8 @@ import scipy.sparse.linalg as spla
 from scipy.linalg import solve
 from scipy.optimize import linear_sum_assignment
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 from facesim.jaw.classic import pivot_estimate
 from facesim.jaw.evaluate import farthest_points
 from facesim.jaw.frame import JawFrame
@@ -89,20 +89,6 @@ def identify_extremes(displacement) -> list[str]:
     score = np.stack([-np.linalg.norm(p, axis=1), -p[:, 1], p[:, 2] + 0.5 * p[:, 1], p[:, 0], -p[:, 0]], axis=1)
     rows, cols = linear_sum_assignment(-score)
     return [names[c] for c in cols[np.argsort(rows)]]
-
-
-def similarity(source, target):
-    """Least-squares similarity (Umeyama 1991) taking ``source (n, 3)`` onto ``target (n, 3)``:
-    (scale c, rotation Q (3, 3), translation b (3,)) with target ≈ c Q source + b."""
-    X, Y = np.asarray(source, dtype=np.float64), np.asarray(target, dtype=np.float64)
-    mx, my = X.mean(axis=0), Y.mean(axis=0)
-    Xc, Yc = X - mx, Y - my
-    U, S, Vt = np.linalg.svd(Yc.T @ Xc / len(X))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    Q = U @ D @ Vt
-    var = (Xc * Xc).sum() / len(X)
-    c = float(np.trace(np.diag(S) @ D) / var) if var > 0 else 1.0
-    return c, Q, my - c * Q @ mx
 
 
 def _shield_weights(n_samples: int, sliders) -> np.ndarray:
@@ -161,18 +147,6 @@ def _rotation_field(points, omega, centres: int, smoothing: float, scale: float)
     return C, solve(H, A.T @ omega, assume_a="sym")
 
 
-def _kabsch(rest, moved) -> np.ndarray:
-    """Rotations ``(n, 3, 3)`` of the least-squares rigid fits of ``rest (k, 3)`` onto each
-    ``moved (n, k, 3)`` (Kabsch 1976, equal weights)."""
-    A = rest - rest.mean(axis=0)
-    B = moved - moved.mean(axis=1, keepdims=True)
-    U, _, Vt = np.linalg.svd(np.einsum("ki,nkj->nij", A, B))
-    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
-    D = np.broadcast_to(np.eye(3), (len(B), 3, 3)).copy()
-    D[:, 2, 2] = np.sign(np.linalg.det(V @ Ut))
-    return V @ D @ Ut
-
-
 def _axis_rotation(a, b) -> np.ndarray:
     """Smallest rotations ``(n, 3, 3)`` taking the unit vectors ``a (n, 3)`` to ``b (n, 3)``."""
     K = se3.hat(np.cross(a, b))
@@ -224,7 +198,7 @@ class _Transfer:
         """Rotations ``(n, 3, 3)`` fitting the rest reference point and condyle proxies onto the
         reference points ``reference (n, 3)`` and the mapped condyles at ``s (n, 3)``."""
         _, right, left = self.condyles(s)
-        return _kabsch(self.points, np.stack([reference, right, left], axis=1))
+        return se3.fit_rotation(self.points, np.stack([reference, right, left], axis=1))
 
 
 #: slider values of the six border curves (s_x, s_z), s_y running along the curve
@@ -285,7 +259,7 @@ def retarget_posselt(rig: PosseltRig, poses, reference_point=None, names=None, s
     p_t = local[:, :3, 3]
 
     # steps 2-4: Procrustes prior, transferred border curves, Laplacian deformation onto the extremes
-    c, Q, _ = similarity(rig.shield.point(sliders), p_t)
+    c, Q, _ = se3.similarity(rig.shield.point(sliders), p_t)
     transfer = _Transfer(rig, sliders, local, c * Q, float(condyle_offset))
     K = rig.shield.curves.shape[1]
     along = np.linspace(0.0, 1.0, K)
@@ -304,4 +278,4 @@ def retarget_posselt(rig: PosseltRig, poses, reference_point=None, names=None, s
     return PosseltRig(frame, shield, C, coefficients, rig.scale)
 
 
-__all__ = ["EXTREMES", "MODES", "deform_shield", "identify_extremes", "retarget_posselt", "similarity"]
+__all__ = ["EXTREMES", "MODES", "deform_shield", "identify_extremes", "retarget_posselt"]

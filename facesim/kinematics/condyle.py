@@ -36,8 +36,9 @@ from __future__ import annotations
 import numpy as np
 
 from facesim.errors import FacesimError
-from facesim.kinematics.frames import N_FRAME, matrix_to_frame, rigid_fit, rigidity_penalty
+from facesim.kinematics.frames import N_FRAME, matrix_to_frame, rigidity_penalty
 from facesim.model import JawGeometry
+from facesim.se3 import rigid_fit
 
 
 def _skew(a) -> np.ndarray:

@@ -124,39 +124,8 @@ class RigidityTerm:
         return self.weight * rigidity_penalty(q, project=project)[2]
 
 
-def rigid_fit(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """4x4 rigid transform taking points ``P (k, 3)`` closest to ``Q (k, 3)`` (Kabsch); identity if k = 0."""
-    T = np.eye(4)
-    if len(P) == 0:
-        return T
-    cp, cq = P.mean(axis=0), Q.mean(axis=0)
-    U, _, Vt = np.linalg.svd((P - cp).T @ (Q - cq))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    T[:3, :3] = R
-    T[:3, 3] = cq - R @ cp
-    return T
-
-
-def interpolate_rigid(A: np.ndarray, B: np.ndarray, s: float, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """Rigid 4x4 a fraction ``s`` of the way from ``A`` to ``B``: the rotation by slerp, the image
-    of ``centre (3,)`` (choose a point of the moving body) along the straight line."""
-    from scipy.spatial.transform import Rotation
-
-    c = np.asarray(centre, dtype=np.float64)
-    r = Rotation.from_matrix(B[:3, :3] @ A[:3, :3].T).as_rotvec()
-    R = Rotation.from_rotvec(s * r).as_matrix() @ A[:3, :3]
-    p = (1 - s) * (A[:3, :3] @ c + A[:3, 3]) + s * (B[:3, :3] @ c + B[:3, 3])
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = p - R @ c
-    return T
-
-
 __all__ = [
     "N_FRAME",
-    "interpolate_rigid",
-    "rigid_fit",
     "RigidityTerm",
     "attached_jacobian",
     "attached_positions",

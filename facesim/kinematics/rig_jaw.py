@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 from facesim.jaw.classic import ClassicRig
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.nlpca import NlpcaRig

@@ -109,7 +109,7 @@ def test_bad_controls_are_refused(face):
 
 
 def test_rigid_fit_and_interpolation():
-    from facesim.kinematics.frames import interpolate_rigid, rigid_fit
+    from facesim.se3 import interpolate_rigid, rigid_fit
 
     rng = np.random.default_rng(0)
     T = rotation_about([0.2, -0.4, 0.1], [10.0, 0.0, 5.0])

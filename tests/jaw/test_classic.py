@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw import se3
 from facesim.jaw.classic import DOF, ClassicRig, fit_classic, pivot_estimate
 from facesim.jaw.evaluate import front_weights, mandible_points
 from facesim.jaw.frame import JawFrame

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 import facesim.cli as facesim_cli
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import load_rig, se3
+from facesim.jaw import load_rig
 from facesim.jaw.cli import add_jaw_commands
 from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
 from facesim.jaw.motion import JawMotion, Subject

@@ -4,7 +4,7 @@ within its limits, the shipped rig, ``--jaw-model posselt`` and ``facesim jaw fi
 import numpy as np
 import pytest
 
-from facesim.jaw import se3
+from facesim import se3
 from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
 from facesim.jaw.model_rig import (
     TEST_SEED,

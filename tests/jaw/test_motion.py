@@ -6,8 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 from facesim.jaw.motion import BORDER_CURVES, JawMotion, Subject
 from facesim.model import JawGeometry
 

@@ -5,8 +5,9 @@ import json
 import numpy as np
 import pytest
 
+from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw import load_rig, se3
+from facesim.jaw import load_rig
 from facesim.jaw.evaluate import front_weights, mandible_points
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion

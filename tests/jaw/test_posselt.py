@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw import load_rig, se3
+from facesim.jaw import load_rig
 from facesim.jaw.evaluate import (
     compare_rigs,
     format_table,

@@ -4,8 +4,8 @@ et al. 2018 section 5)."""
 import numpy as np
 import pytest
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion, Subject
@@ -15,8 +15,8 @@ from facesim.jaw.retarget import (
     deform_shield,
     identify_extremes,
     retarget_posselt,
-    similarity,
 )
+from facesim.se3 import similarity
 
 LATENT = {"rest": (0.0, 0.0, 0.0), "open": (1.0, 0.0, 0.0), "protrusion": (0.0, 1.0, 0.0),
           "left": (0.0, 0.0, 1.0), "right": (0.0, 0.0, -1.0)}

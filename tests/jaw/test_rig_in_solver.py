@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import facesim.cli as facesim_cli
-from facesim.jaw import se3
+from facesim import se3
 from facesim.jaw.model_rig import fit_model_rig, model_rig_path
 from facesim.kinematics.rig_jaw import RigJaw
 from facesim.mocap.io import write_markers_csv

@@ -1,11 +1,11 @@
-"""SE(3) log/exp maps, errors and geodesic interpolation (facesim.jaw.se3)."""
+"""SE(3) log/exp maps, errors and geodesic interpolation (facesim.se3)."""
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 
 
 def _twists(rng, n, angles):

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw import se3
 from facesim.jaw._shipped import shipped_model
 from facesim.jaw.classic import fit_classic
 from facesim.jaw.evaluate import front_weights, mandible_points

@@ -1,9 +1,11 @@
-"""Rigid motions of the mandible: the log and exp maps of SE(3), errors and geodesic interpolation.
+"""Rigid motions: the log and exp maps of SE(3), rigid (Kabsch) and similarity (Umeyama) fits,
+errors and interpolation. The bottom of the import graph (numpy, scipy and facesim.errors only):
+the jaw rigs, the bone frames, the solver's bone predictor and the head stabilisation all use it.
 
 A pose is a 4x4 homogeneous transform ``T = [[R, t], [0, 1]]`` (R a rotation, t in mm); a twist
 is the 6-vector ``xi = (omega, v)``: ``omega`` (rad) the rotation vector, ``v`` (mm) the
 translational part, with ``T = exp(xi)`` (Murray, Li & Sastry 1994, ch. 2; Yang et al. 2018 work
-with jaw poses in this se(3) chart). Every function takes one item or a batch: ``xi (6,)`` or
+with jaw poses in this se(3) chart). The maps take one item or a batch: ``xi (6,)`` or
 ``(..., 6)``, ``T (4, 4)`` or ``(..., 4, 4)``.
 
 Closed forms, with theta = |omega| and K = hat(omega)::
@@ -177,6 +179,57 @@ def vertex_errors(T_a, T_b, points, weights=None) -> np.ndarray:
     return d @ (w / w.sum())
 
 
+def fit_rotation(P, Q) -> np.ndarray:
+    """Rotations ``(..., 3, 3)`` R minimising Σ_j |R (p_j − p̄) − (q_j − q̄)|² for the point sets
+    ``P (..., k, 3)`` and ``Q (..., k, 3)`` mm (broadcast against each other, k >= 1): the Kabsch
+    (1976) fit, det R = +1. From the SVD U S Vᵀ of H = Σ_j (p_j − p̄)(q_j − q̄)ᵀ, R = V D Uᵀ with
+    D = diag(1, 1, sign det(V Uᵀ))."""
+    P, Q = np.asarray(P, dtype=np.float64), np.asarray(Q, dtype=np.float64)
+    A = P - P.mean(axis=-2, keepdims=True)
+    B = Q - Q.mean(axis=-2, keepdims=True)
+    U, _, Vt = np.linalg.svd(np.swapaxes(A, -1, -2) @ B)
+    V, Ut = np.swapaxes(Vt, -1, -2), np.swapaxes(U, -1, -2)
+    D = np.broadcast_to(np.eye(3), V.shape).copy()
+    D[..., 2, 2] = np.where(np.linalg.det(V @ Ut) < 0, -1.0, 1.0)
+    return V @ D @ Ut
+
+
+def rigid_fit(P, Q) -> np.ndarray:
+    """4x4 rigid transform taking points ``P (k, 3)`` closest to ``Q (k, 3)`` mm in least squares
+    (:func:`fit_rotation`, then the centroids); the identity if k = 0."""
+    P, Q = np.asarray(P, dtype=np.float64), np.asarray(Q, dtype=np.float64)
+    if len(P) == 0:
+        return np.eye(4)
+    R = fit_rotation(P, Q)
+    return from_rt(R, Q.mean(axis=0) - R @ P.mean(axis=0))
+
+
+def similarity(source, target):
+    """Least-squares similarity (Umeyama 1991) taking ``source (n, 3)`` onto ``target (n, 3)`` mm:
+    (scale c, rotation Q (3, 3), translation b (3,) mm) with target ≈ c Q source + b. Q is the
+    :func:`fit_rotation` of the two; c = tr(Q H) / Σ |x − x̄|², which is Umeyama's tr(D S) / σ²."""
+    X, Y = np.asarray(source, dtype=np.float64), np.asarray(target, dtype=np.float64)
+    mx, my = X.mean(axis=0), Y.mean(axis=0)
+    Xc, Yc = X - mx, Y - my
+    Q = fit_rotation(X, Y)
+    var = (Xc * Xc).sum()
+    c = float(np.trace(Q @ (Xc.T @ Yc)) / var) if var > 0 else 1.0
+    return c, Q, my - c * Q @ mx
+
+
+def interpolate_rigid(A, B, s: float, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Rigid 4x4 a fraction ``s`` of the way from ``A (4, 4)`` to ``B (4, 4)``: the rotation along
+    the shortest arc (slerp), the image of ``centre (3,)`` mm (choose a point of the moving body)
+    along the straight line. Unlike :func:`interpolate` (a screw at constant twist speed), a point
+    of the body does not swing around a far-away axis."""
+    A, B = np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64)
+    c = np.asarray(centre, dtype=np.float64)
+    r = so3_log(B[:3, :3] @ A[:3, :3].T)
+    R = so3_exp(s * r) @ A[:3, :3]
+    p = (1 - s) * (A[:3, :3] @ c + A[:3, 3]) + s * (B[:3, :3] @ c + B[:3, 3])
+    return from_rt(R, p - R @ c)
+
+
 def interpolate(A, B, s) -> np.ndarray:
     """Geodesic from pose ``A (4, 4)`` to ``B (4, 4)``: ``A exp(s log(A⁻¹ B))`` at ``s`` (scalar ->
     (4, 4); (k,) -> (k, 4, 4)). A screw motion at constant twist speed; s = 0 gives A, s = 1 B."""
@@ -190,12 +243,16 @@ def interpolate(A, B, s) -> np.ndarray:
 
 __all__ = [
     "exp",
+    "fit_rotation",
     "from_rt",
     "hat",
     "interpolate",
+    "interpolate_rigid",
     "inverse",
     "log",
+    "rigid_fit",
     "rigidity_error",
+    "similarity",
     "so3_exp",
     "so3_log",
     "transform_points",
