@@ -21,11 +21,12 @@ from __future__ import annotations
 import weakref
 
 import numpy as np
+import scipy.sparse as sp
 
 from facesim._kernels import contact as K
 from facesim.contact.sdf import as_collider
+from facesim.energy import NodeTerm
 from facesim.errors import FacesimError
-from facesim.fem.system import DofSystem
 
 DEFAULT_STIFFNESS = 1.0
 """Default ``k``: 1 N/mm per node (unit weights) or 1 N/mm^3 (area weights). Soft tissue
@@ -46,7 +47,7 @@ def node_areas(x, triangles, n_nodes: int | None = None) -> np.ndarray:
     return np.bincount(tri.ravel(), np.repeat(a / 3.0, 3), minlength=n)
 
 
-class ContactTerm:
+class ContactTerm(NodeTerm):
     """Penalty contact of ``nodes`` against rigid ``colliders`` (energy term of the FEM).
 
     Parameters
@@ -58,8 +59,8 @@ class ContactTerm:
         only penetrating nodes are pushed).
     weights : optional (k,) non-negative weights, typically :func:`node_areas` (mm^2).
 
-    Methods follow the energy-term protocol of :mod:`facesim.fem.terms`: ``x (n, 3)`` mm,
-    ``a`` ignored, energies in mJ (N mm), gradients in N, Hessian blocks in N/mm.
+    A :class:`~facesim.energy.NodeTerm`: ``x (n, 3)`` mm, ``a`` ignored, energies in mJ (N mm),
+    gradients in N, Hessian (one 3x3 block per node) in N/mm.
     Immutable; :meth:`with_colliders` returns a copy with moved colliders (scripted frames).
     """
 
@@ -131,7 +132,7 @@ class ContactTerm:
     def gradient(self, x, a=None) -> np.ndarray:
         return self.energy_and_gradient(x, a)[1]
 
-    def diagonal_blocks(self, system: DofSystem) -> np.ndarray:
+    def diagonal_blocks(self, system: "DofSystem") -> np.ndarray:
         """``(k,)`` index of each node's diagonal 3x3 block in ``system``'s BSR data (-1 for nodes
         outside the system). Computed once per system (its pattern never changes)."""
         ref, blocks = self._blocks
@@ -144,14 +145,28 @@ class ContactTerm:
         self._blocks = (weakref.ref(system), blocks)
         return blocks
 
-    def add_hessian(self, x, a, system: DofSystem, data: np.ndarray, project: bool = True) -> None:
-        """Add the Hessian (N/mm) into ``data (n_blocks, 3, 3)``; ``project`` keeps each node's PSD part."""
+    def _add_blocks(self, x, blocks, data, project) -> None:
+        """Add node i's 3x3 Hessian block (N/mm) into ``data[blocks[i]]`` (-1: skip the node)."""
         x = self._positions(x)
-        blocks = self.diagonal_blocks(system)
         p = x[self.nodes]
         for c in self.colliders:
             d, G, H = c.evaluate(p, hessian=True)
             K.penalty_hessian(blocks, d, G, H, self.weights, self.stiffness, self.margin, bool(project), data)
+
+    def add_hessian(self, x, a, system: "DofSystem", data: np.ndarray, project: bool = True) -> None:
+        """Add the Hessian (N/mm) into ``data (n_blocks, 3, 3)``; ``project`` keeps each node's PSD part."""
+        self._add_blocks(x, self.diagonal_blocks(system), data, project)
+
+    def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
+        """``(3n, 3n)`` block-diagonal Hessian (N/mm); ``project`` keeps each node's PSD part."""
+        n = len(self._positions(x))
+        k = len(self.nodes)
+        blocks = np.zeros((k, 3, 3))
+        self._add_blocks(x, np.arange(k), blocks, project)
+        dof = 3 * self.nodes[:, None] + np.arange(3)                 # (k, 3)
+        rows = np.broadcast_to(dof[:, :, None], (k, 3, 3))
+        cols = np.broadcast_to(dof[:, None, :], (k, 3, 3))
+        return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n, 3 * n))
 
     def __repr__(self):
         return (f"ContactTerm({len(self.nodes)} nodes, {len(self.colliders)} colliders, stiffness={self.stiffness}, "

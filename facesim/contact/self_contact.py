@@ -59,8 +59,8 @@ import scipy.sparse as sp
 
 from facesim._kernels import selfcontact as K
 from facesim.contact.penalty import DEFAULT_STIFFNESS, node_areas
+from facesim.energy import NodeTerm
 from facesim.errors import FacesimError
-from facesim.fem.system import DofSystem
 
 REST_CLEARANCE = 0.05
 """mm below a node's rest distance where its penalty starts when the rest surfaces are closer than
@@ -93,7 +93,7 @@ def mean_edge_length(X, *surfaces) -> float:
     return float(np.linalg.norm(e, axis=2).mean())
 
 
-class SurfaceContactTerm:
+class SurfaceContactTerm(NodeTerm):
     """Symmetric penalty self-contact between two surfaces of one mesh (energy term of the FEM).
 
     Parameters
@@ -115,9 +115,9 @@ class SurfaceContactTerm:
     both); ``side (k,)`` 0 / 1; ``triangles (s_a + s_b, 3)``; ``weights (k,)``; ``rest_distances
     (k,)`` (+inf: no facing triangle in reach); ``margins (k,)`` the per-node ``m_i`` (mm).
 
-    Energy-term protocol (:mod:`facesim.fem.terms`, :class:`facesim.fem.newton.Problem`): ``x (n, 3)``
-    mm, ``a`` ignored; :meth:`add_hessian` adds nothing and :meth:`sparse_hessian` carries the
-    whole Hessian (it couples nodes that share no element).
+    A :class:`~facesim.energy.NodeTerm`: ``x (n, 3)`` mm, ``a`` ignored; :meth:`add_hessian` adds
+    nothing and :meth:`sparse_hessian` carries the whole Hessian (it couples nodes that share no
+    element).
     """
 
     def __init__(self, surface_a, surface_b, X_rest, stiffness: float = DEFAULT_STIFFNESS, margin: float = 0.0,
@@ -239,23 +239,31 @@ class SurfaceContactTerm:
     def gradient(self, x, a=None) -> np.ndarray:
         return self.energy_and_gradient(x, a)[1]
 
-    def add_hessian(self, x, a, system: DofSystem, data: np.ndarray, project: bool = True) -> None:
+    def _hessian(self, x, row_of, free_dof, project) -> sp.csr_matrix:
+        """CSR Hessian (N/mm) over the dofs ``3 row_of[v] + k`` whose ``free_dof`` is True."""
+        x = self._positions(x)
+        tri, d, coef, delta, U, B, region, _ = self.closest(x)
+        rows, cols, vals = K.penalty_hessian(x, self.nodes, self.triangles, tri, d, coef, delta, U, B, region,
+                                             self.weights, self.margins, self.stiffness, row_of,
+                                             np.ascontiguousarray(free_dof), not project)
+        n = len(free_dof)
+        return sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
+
+    def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
+        """``(3n, 3n)`` CSR Hessian (N/mm). ``project``: Gauss-Newton (PSD); else exact."""
+        return self._hessian(x, np.arange(self.n_nodes), np.ones(3 * self.n_nodes, bool), project)
+
+    def add_hessian(self, x, a, system: "DofSystem", data: np.ndarray, project: bool = True) -> None:
         """Nothing: the whole Hessian, diagonal blocks included, comes from :meth:`sparse_hessian`
         (so no block is counted twice)."""
 
-    def sparse_hessian(self, x, a, system: DofSystem, project: bool = True) -> sp.csr_matrix:
+    def sparse_hessian(self, x, a, system: "DofSystem", project: bool = True) -> sp.csr_matrix:
         """``(system.n_dofs, system.n_dofs)`` CSR Hessian (N/mm) over ``system``'s dofs, zero in the
         rows and columns of prescribed components and of nodes outside the system. ``project``:
         Gauss-Newton (PSD); else exact."""
-        x = self._positions(x)
         if system.n_nodes != self.n_nodes:
             raise FacesimError(f"system: expected {self.n_nodes} nodes, got {system.n_nodes}")
-        tri, d, coef, delta, U, B, region, _ = self.closest(x)
-        rows, cols, vals = K.penalty_hessian(x, self.nodes, self.triangles, tri, d, coef, delta, U, B, region,
-                                             self.weights, self.margins, self.stiffness, system.row_of,
-                                             np.ascontiguousarray(system.free_dof), not project)
-        n = system.n_dofs
-        return sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
+        return self._hessian(x, system.row_of, system.free_dof, project)
 
     def __repr__(self):
         return (f"SurfaceContactTerm({int((self.side == 0).sum())} + {int((self.side == 1).sum())} nodes, "

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facesim._kernels.elements import max_inversion_free_step
 from facesim.errors import FacesimError
 from facesim.fem.linear import SOLVERS, make_linear_solver
 from facesim.fem.system import DofSystem
@@ -92,12 +91,12 @@ class SolveReport:
 
 
 class Problem:
-    """Total energy of ``terms`` at activations ``a`` over ``system``, with prescribed positions
-    taken from ``x_fixed (n, 3)`` (free components of ``x_fixed`` are the starting guess).
+    """Total energy of ``terms`` (:class:`~facesim.energy.NodeTerm` s) at activations ``a`` over
+    ``system``, with prescribed positions taken from ``x_fixed (n, 3)`` (free components of
+    ``x_fixed`` are the starting guess).
 
-    A term whose Hessian couples nodes that share no element (self-contact) also has
-    ``sparse_hessian(x, a, system, project) -> scipy.sparse (3N, 3N)`` over the system's dofs,
-    zero in prescribed rows and columns; it is added to the assembled matrix."""
+    The matrix is every term's ``add_hessian`` blocks plus its ``sparse_hessian`` (couplings
+    outside the mesh pattern, e.g. self-contact); the step limit is the smallest ``max_step``."""
 
     def __init__(self, terms, system: DofSystem, x_fixed: np.ndarray, a=None):
         self.terms = list(terms)
@@ -128,10 +127,9 @@ class Problem:
         extra = []
         for t in self.terms:
             t.add_hessian(x, self.a, self.system, data, project)
-            if hasattr(t, "sparse_hessian"):   # couplings outside the mesh pattern (self-contact)
-                H = t.sparse_hessian(x, self.a, self.system, project)
-                if H is not None and H.nnz:
-                    extra.append(H)
+            H = t.sparse_hessian(x, self.a, self.system, project)
+            if H is not None and H.nnz:
+                extra.append(H)
         d = data[:, [0, 1, 2], [0, 1, 2]]
         diag = float(np.abs(d).mean()) if d.size else 1.0
         A = self.system.matrix(data, diag=diag if diag > 0 else 1.0)
@@ -141,9 +139,10 @@ class Problem:
         return A
 
     def max_step(self, x, du: np.ndarray) -> float:
+        """Largest fraction of the step ``du (3N,)`` every term allows (``inf``: no limit)."""
         dx = np.zeros_like(x)
         dx[self.system.active] = du.reshape(-1, 3)
-        return float(max_inversion_free_step(x, dx, self.system.tets, self.system.elems, 16))
+        return float(min((t.max_step(x, dx) for t in self.terms), default=np.inf))
 
 
 def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=None) -> tuple[np.ndarray, SolveReport]:

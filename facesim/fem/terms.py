@@ -1,9 +1,8 @@
 """Energy terms of the flesh: invertible Mooney-Rivlin elasticity and muscle fibres.
 
-Each term has ``energy(x, a)``, ``gradient(x, a) -> (n, 3)`` and ``add_hessian(x, a, system,
-data, project)`` which adds its Hessian into a :class:`~facesim.fem.system.DofSystem`'s block
-data. ``x (n, 3)`` positions in mm, ``a (n_muscles,)`` activations. Energies in mJ (N mm),
-gradients in N.
+Both are :class:`~facesim.energy.NodeTerm` s: ``x (n, 3)`` positions in mm, ``a (n_muscles,)``
+activations; energies in mJ (N mm), gradients ``(n, 3)`` in N, Hessians in N/mm, assembled into a
+:class:`~facesim.fem.system.DofSystem`'s block data by ``add_hessian``.
 """
 
 from __future__ import annotations
@@ -12,9 +11,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from facesim._kernels import elements as K
+from facesim.energy import NodeTerm
 from facesim.errors import FacesimError
 from facesim.fem.material import DEFAULT_CLAMP, VOLUMETRIC
 from facesim.fem.system import DofSystem, RestShape
+
+
+INVERSION_SAMPLES = 16
+"""Points per step at which :meth:`ElasticTerm.max_step` samples each tet's volume (then bisects)."""
 
 
 def _positions(x, n) -> np.ndarray:
@@ -24,7 +28,20 @@ def _positions(x, n) -> np.ndarray:
     return x
 
 
-class ElasticTerm:
+def _own_hessian(term, x, a, project: bool, elems) -> sp.csr_matrix:
+    """``(3n, 3n)`` Hessian of ``term`` (``add_hessian``) over the tets ``elems``, every node free."""
+    n = len(term.rest.X)
+    if len(elems) == 0:
+        return sp.csr_matrix((3 * n, 3 * n))
+    system = DofSystem(term.rest.tets, n, np.zeros((n, 3), bool), elems)
+    data = system.new_data()
+    term.add_hessian(x, a, system, data, project)
+    H = sp.bsr_matrix((data, system.indices, system.indptr), shape=(system.n_dofs, system.n_dofs)).tocoo()
+    dof = (3 * system.active[:, None] + np.arange(3)).ravel()
+    return sp.csr_matrix((H.data, (dof[H.row], dof[H.col])), shape=(3 * n, 3 * n))
+
+
+class ElasticTerm(NodeTerm):
     """Mooney-Rivlin flesh on the tets ``elems`` with per-tet parameters (MPa).
 
     ``c10, c01, kappa``: (m,) arrays over all tets of the mesh (only ``elems`` are used).
@@ -65,6 +82,16 @@ class ElasticTerm:
         K.elastic_assemble(_positions(x, len(self.rest.X)), *self._args(), bool(project), system.colour_ptr,
                            system.colour_elems, system.e2b, data)
 
+    def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
+        return _own_hessian(self, x, a, project, self.elems)
+
+    def max_step(self, x, dx) -> float:
+        """Largest fraction in (0, 1] of ``dx (n, 3)`` mm before a tet of positive volume at ``x``
+        reaches zero volume (1 when none does); already inverted tets set no limit."""
+        dx = np.ascontiguousarray(dx, dtype=np.float64)
+        return float(K.max_inversion_free_step(_positions(x, len(self.rest.X)), dx, self.rest.tets, self.elems,
+                                               INVERSION_SAMPLES))
+
     def element_hessians(self, x, project: bool = False) -> np.ndarray:
         """(len(elems), 12, 12) element Hessians (node-major dofs), for tests and inspection."""
         Ke = np.empty((len(self.elems), 12, 12))
@@ -72,7 +99,7 @@ class ElasticTerm:
         return Ke
 
 
-class MuscleTerm:
+class MuscleTerm(NodeTerm):
     """Fibre term of all muscles: passive plus activation-scaled active force-length stress.
 
     Entries ``(tet, muscle, fraction, fibre)`` as in :class:`~facesim.model.MuscleSet`;
@@ -139,6 +166,9 @@ class MuscleTerm:
         K.fibre_assemble(_positions(x, len(r.X)), r.tets, r.Bm, r.V0, self.ent_ptr, self.fibre, self.muscle,
                          self.fraction, self.sigma, self.gain, self._a(a), bool(project), system.colour_ptr,
                          system.colour_elems, system.e2b, data)
+
+    def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
+        return _own_hessian(self, x, a, project, np.unique(self.tet))
 
     def force_columns(self, x) -> sp.csc_matrix:
         """``G (3n, n_muscles)``: column m is the internal force of muscle m at activation 1 with the
