@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facesim.energy import ParameterTerm
 from facesim.errors import FacesimError
 from facesim.kinematics.frames import N_FRAME, matrix_to_frame, rigidity_penalty
 from facesim.model import JawGeometry
@@ -263,23 +264,17 @@ class SlidingCondyleJaw:
         return _range_penalty(p, lower, upper, np.full(3, self.penalty_weight), np.eye(3))
 
 
-class KinematicTerm:
-    """Energy term ``phi_kin`` of a :class:`SlidingCondyleJaw` on the jaw frame ``q (12,)``, for
-    solvers that move the 12 affine coefficients; ``weights`` as in ``phi_kin``. The Hessian is
-    PSD-projected by default."""
+class KinematicTerm(ParameterTerm):
+    """Energy term ``phi_kin`` of a :class:`SlidingCondyleJaw` on the jaw frame ``x = q (12,)``
+    (a :class:`~facesim.energy.ParameterTerm`; ``a`` ignored), for solvers that move the 12 affine
+    coefficients; ``weights`` as in ``phi_kin``. The Hessian is PSD-projected by default."""
 
     def __init__(self, jaw: SlidingCondyleJaw, weights=None):
         self.jaw = jaw
         self.weights = None if weights is None else np.array(weights, dtype=np.float64)
 
-    def energy(self, q) -> float:
-        return self.jaw.phi_kin(q, self.weights)[0]
-
-    def gradient(self, q) -> np.ndarray:
-        return self.jaw.phi_kin(q, self.weights)[1]
-
-    def hessian(self, q, project: bool = True) -> np.ndarray:
-        return self.jaw.phi_kin(q, self.weights, project=project)[2]
+    def evaluate(self, q, project: bool = True):
+        return self.jaw.phi_kin(q, self.weights, project=project)
 
 
 __all__ = ["KinematicTerm", "SlidingCondyleJaw"]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from facesim.energy import ParameterTerm
 from facesim.errors import FacesimError
 
 N_FRAME = 12
@@ -102,8 +103,9 @@ def rigidity_penalty(q, project: bool = False):
     return value, grad, hess
 
 
-class RigidityTerm:
-    """Energy term ``weight * ||MᵀM − I||²_F`` on a frame ``q (12,)``; ``weight`` in the energy's units.
+class RigidityTerm(ParameterTerm):
+    """Energy term ``weight * ||MᵀM − I||²_F`` on a frame ``x = q (12,)`` (a
+    :class:`~facesim.energy.ParameterTerm`; ``a`` ignored); ``weight`` in the energy's units.
 
     ``hessian`` is PSD-projected by default (what the solver wants); pass ``project=False`` for
     the exact one.
@@ -114,14 +116,9 @@ class RigidityTerm:
         if not self.weight >= 0:
             raise FacesimError(f"RigidityTerm: expected weight >= 0, got {weight}")
 
-    def energy(self, q) -> float:
-        return self.weight * rigidity_penalty(q)[0]
-
-    def gradient(self, q) -> np.ndarray:
-        return self.weight * rigidity_penalty(q)[1]
-
-    def hessian(self, q, project: bool = True) -> np.ndarray:
-        return self.weight * rigidity_penalty(q, project=project)[2]
+    def evaluate(self, q, project: bool = True):
+        value, grad, hess = rigidity_penalty(q, project=project)
+        return self.weight * value, self.weight * grad, self.weight * hess
 
 
 __all__ = [
