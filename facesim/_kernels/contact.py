@@ -1,5 +1,5 @@
-"""Contact kernels: signed distances of rigid colliders, the mesh SDF grid builder and the
-penalty energy / gradient / Hessian loop.
+"""Contact kernels: signed distances of rigid colliders, the closest point of a triangle, the mesh
+SDF grid builder and the penalty energy / gradient / Hessian loop.
 
 Evaluation kernels share one convention: points ``P (k, 3)`` in world mm, the collider pose
 ``R (3, 3)``, ``t (3,)`` (local -> world ``p = R p_l + t``), outputs ``d (k,)`` mm, ``G (k, 3)``
@@ -14,6 +14,9 @@ import numpy as np
 from numba import njit
 
 from facesim._kernels import JIT_FLAGS
+
+FACE = 7
+"""Region code of a triangle's interior (all three vertices active), :func:`triangle_closest_point`."""
 
 
 @njit(**JIT_FLAGS)
@@ -212,55 +215,66 @@ def _segment_dist2(x, y, z, V, a, b):
 
 
 @njit(**JIT_FLAGS)
+def triangle_closest_point(V, a, b, c, x, y, z):
+    """Closest point of the triangle of vertices ``a, b, c`` (rows of ``V (nv, 3)``) to the point
+    ``(x, y, z)``: barycentric ``(b0, b1, b2)`` and the region code, a bit mask of the vertices
+    the closest point depends on (``FACE`` = 7 the interior, 3 / 5 / 6 the edges (a, b) / (a, c)
+    / (b, c), 1 / 2 / 4 the vertices a / b / c); Ericson, Real-Time Collision Detection, section
+    5.1.5. The triangle must not be degenerate (Ericson's weights divide by its area)."""
+    ab0, ab1, ab2 = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+    ac0, ac1, ac2 = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+    ap0, ap1, ap2 = x - V[a, 0], y - V[a, 1], z - V[a, 2]
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    if d1 <= 0.0 and d2 <= 0.0:
+        return 1.0, 0.0, 0.0, 1
+    bp0, bp1, bp2 = x - V[b, 0], y - V[b, 1], z - V[b, 2]
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    if d3 >= 0.0 and d4 <= d3:
+        return 0.0, 1.0, 0.0, 2
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return 1.0 - v, v, 0.0, 3
+    cp0, cp1, cp2 = x - V[c, 0], y - V[c, 1], z - V[c, 2]
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    if d6 >= 0.0 and d5 <= d6:
+        return 0.0, 0.0, 1.0, 4
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return 1.0 - w, 0.0, w, 5
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return 0.0, 1.0 - w, w, 6
+    den = 1.0 / (va + vb + vc)
+    v = vb * den
+    w = vc * den
+    return 1.0 - v - w, v, w, FACE
+
+
+@njit(**JIT_FLAGS)
 def triangle_distance2(V, F, f, x, y, z):
-    """Squared distance from point ``(x, y, z)`` to triangle ``f`` of ``V (nv, 3)``, ``F (nf, 3)``
-    (Ericson, Real-Time Collision Detection, section 5.1.5)."""
+    """Squared distance from point ``(x, y, z)`` to triangle ``f`` of ``V (nv, 3)``, ``F (nf, 3)``:
+    :func:`triangle_closest_point`, or the nearest of the three edges for a degenerate triangle."""
     a = F[f, 0]
     b = F[f, 1]
     c = F[f, 2]
     ab0, ab1, ab2 = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
     ac0, ac1, ac2 = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
-    ap0, ap1, ap2 = x - V[a, 0], y - V[a, 1], z - V[a, 2]
     # degenerate (zero-area) triangles, e.g. from marching cubes: nearest of the three edges
     n0, n1, n2 = ab1 * ac2 - ab2 * ac1, ab2 * ac0 - ab0 * ac2, ab0 * ac1 - ab1 * ac0
     if n0 * n0 + n1 * n1 + n2 * n2 <= 1e-24 * ((ab0 * ab0 + ab1 * ab1 + ab2 * ab2) * (ac0 * ac0 + ac1 * ac1 + ac2 * ac2)
                                                 + 1e-300):
         return min(_segment_dist2(x, y, z, V, a, b), _segment_dist2(x, y, z, V, a, c), _segment_dist2(x, y, z, V, b, c))
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    if d1 <= 0.0 and d2 <= 0.0:
-        return ap0 * ap0 + ap1 * ap1 + ap2 * ap2
-    bp0, bp1, bp2 = x - V[b, 0], y - V[b, 1], z - V[b, 2]
-    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-    if d3 >= 0.0 and d4 <= d3:
-        return bp0 * bp0 + bp1 * bp1 + bp2 * bp2
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        v = d1 / (d1 - d3)
-        x0, x1, x2 = ap0 - v * ab0, ap1 - v * ab1, ap2 - v * ab2
-        return x0 * x0 + x1 * x1 + x2 * x2
-    cp0, cp1, cp2 = x - V[c, 0], y - V[c, 1], z - V[c, 2]
-    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-    if d6 >= 0.0 and d5 <= d6:
-        return cp0 * cp0 + cp1 * cp1 + cp2 * cp2
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        w = d2 / (d2 - d6)
-        x0, x1, x2 = ap0 - w * ac0, ap1 - w * ac1, ap2 - w * ac2
-        return x0 * x0 + x1 * x1 + x2 * x2
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        x0 = bp0 - w * (V[c, 0] - V[b, 0])
-        x1 = bp1 - w * (V[c, 1] - V[b, 1])
-        x2 = bp2 - w * (V[c, 2] - V[b, 2])
-        return x0 * x0 + x1 * x1 + x2 * x2
-    den = 1.0 / (va + vb + vc)
-    v = vb * den
-    w = vc * den
-    x0, x1, x2 = ap0 - v * ab0 - w * ac0, ap1 - v * ab1 - w * ac1, ap2 - v * ab2 - w * ac2
+    _, v, w, _ = triangle_closest_point(V, a, b, c, x, y, z)
+    # p - (a + v ab + w ac), the closest point written from vertex a
+    x0 = x - V[a, 0] - v * ab0 - w * ac0
+    x1 = y - V[a, 1] - v * ab1 - w * ac1
+    x2 = z - V[a, 2] - v * ab2 - w * ac2
     return x0 * x0 + x1 * x1 + x2 * x2
 
 

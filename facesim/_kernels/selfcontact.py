@@ -22,9 +22,8 @@ import numpy as np
 from numba import njit
 
 from facesim._kernels import JIT_FLAGS
+from facesim._kernels.contact import FACE, triangle_closest_point
 
-FACE = 7
-"""Region code of the face interior (all three vertices active)."""
 RAMP = 8
 """Bit added to the region code where the sign of the distance ramps (see :func:`nearest_triangles`)."""
 
@@ -90,40 +89,8 @@ def build_hash(x, tris, h, inflate):
 @njit(**JIT_FLAGS)
 def closest_point(x, p, a, b, c):
     """Closest point of triangle ``(a, b, c)`` (node ids into ``x``) to node ``p``: barycentric
-    ``(b0, b1, b2)`` and the region code (Ericson, Real-Time Collision Detection, section 5.1.5)."""
-    ab0, ab1, ab2 = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
-    ac0, ac1, ac2 = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
-    ap0, ap1, ap2 = x[p, 0] - x[a, 0], x[p, 1] - x[a, 1], x[p, 2] - x[a, 2]
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    if d1 <= 0.0 and d2 <= 0.0:
-        return 1.0, 0.0, 0.0, 1
-    bp0, bp1, bp2 = x[p, 0] - x[b, 0], x[p, 1] - x[b, 1], x[p, 2] - x[b, 2]
-    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-    if d3 >= 0.0 and d4 <= d3:
-        return 0.0, 1.0, 0.0, 2
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        v = d1 / (d1 - d3)
-        return 1.0 - v, v, 0.0, 3
-    cp0, cp1, cp2 = x[p, 0] - x[c, 0], x[p, 1] - x[c, 1], x[p, 2] - x[c, 2]
-    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-    if d6 >= 0.0 and d5 <= d6:
-        return 0.0, 0.0, 1.0, 4
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        w = d2 / (d2 - d6)
-        return 1.0 - w, 0.0, w, 5
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return 0.0, 1.0 - w, w, 6
-    den = 1.0 / (va + vb + vc)
-    v = vb * den
-    w = vc * den
-    return 1.0 - v - w, v, w, FACE
+    ``(b0, b1, b2)`` and the region code (:func:`~facesim._kernels.contact.triangle_closest_point`)."""
+    return triangle_closest_point(x, a, b, c, x[p, 0], x[p, 1], x[p, 2])
 
 
 @njit(**JIT_FLAGS)
