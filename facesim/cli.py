@@ -18,7 +18,7 @@ import zlib
 from pathlib import Path
 
 import facesim
-from facesim._files import require_suffix
+from facesim._files import MESHES, require_suffix
 from facesim.errors import FacesimError, ModelFileError
 from facesim.jaw.cli import add_jaw_commands
 
@@ -42,7 +42,7 @@ def default_model_path() -> Path:
     env = os.environ.get(MODEL_ENV)
     if env:
         return Path(env)
-    return Path(facesim.__file__).resolve().parent.parent / "meshes" / "face_coarse.npz"
+    return MESHES / "face_coarse.npz"
 
 
 def _size(text: str) -> tuple[int, int]:

@@ -16,20 +16,18 @@ is stored under a fixed key. Unknown versions and missing fields are refused wit
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
-import tempfile
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from facesim._files import NpzFormat, read_npz, write_npz
 from facesim.errors import FacesimError, ModelFileError
 
 FORMAT_NAME = "facesim-model"
 FORMAT_VERSION = 1
+MODEL_FORMAT = NpzFormat(FORMAT_NAME, FORMAT_VERSION, what="a facesim model .npz", name="a facesim model file",
+                         label="model format")
 
 #: The rigid bodies flesh can be attached to, and what a rigid surface can move with.
 BONES = ("cranium", "jaw")
@@ -442,19 +440,8 @@ class FaceModel:
     # ------------------------------------------------------------------- I/O
     def save(self, path) -> Path:
         """Write the model to one compressed ``.npz`` (atomically) and return its path."""
-        path = Path(path)
-        arrays = _to_arrays(self)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
-        os.close(fd)
-        try:
-            np.savez_compressed(tmp, **arrays)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        return path
+        arrays, meta = _to_arrays(self)
+        return write_npz(path, MODEL_FORMAT, arrays, meta)
 
     @staticmethod
     def load(path) -> "FaceModel":
@@ -472,7 +459,7 @@ def _surfaces_to_arrays(prefix: str, surfaces) -> tuple[dict, list]:
     return arrays, meta
 
 
-def _to_arrays(model: FaceModel) -> dict[str, np.ndarray]:
+def _to_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
     arrays = {
         "X": model.X,
         "tets": model.tets,
@@ -502,8 +489,6 @@ def _to_arrays(model: FaceModel) -> dict[str, np.ndarray]:
     arrays.update(bone_arrays)
     arrays.update(coll_arrays)
     meta = {
-        "format": FORMAT_NAME,
-        "version": FORMAT_VERSION,
         "tissues": [dataclasses.asdict(t) for t in model.tissues],
         "muscle_names": list(model.muscles.names),
         "muscle_sides": list(model.muscles.sides),
@@ -514,8 +499,7 @@ def _to_arrays(model: FaceModel) -> dict[str, np.ndarray]:
         "jaw_max_opening": model.jaw.max_opening,
         "build": model.meta,
     }
-    arrays["meta"] = np.array(json.dumps(meta))
-    return arrays
+    return arrays, meta
 
 
 def load_model(path) -> FaceModel:
@@ -524,42 +508,8 @@ def load_model(path) -> FaceModel:
     Raises :class:`~facesim.errors.ModelFileError` (one line: file, field, expectation) when the
     file is missing, not an npz, not a facesim model, of an unknown version or lacks a field.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise ModelFileError(path, "no such file (expected a facesim model .npz)")
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise ModelFileError(path, f"not a readable .npz file ({type(exc).__name__})") from None
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise ModelFileError(path, "not an .npz archive (a single .npy array?): expected a facesim model .npz")
-    with data:
-        if "meta" not in data.files:
-            raise ModelFileError(path, "field 'meta' missing: not a facesim model file")
-        try:
-            meta = json.loads(str(data["meta"]))
-        except (json.JSONDecodeError, ValueError):
-            raise ModelFileError(path, "field 'meta': expected a JSON string") from None
-        if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
-            raise ModelFileError(path, f"field 'meta.format': expected {FORMAT_NAME!r}, got {meta.get('format')!r}"
-                                 if isinstance(meta, dict) else "field 'meta': expected a JSON object")
-        version = meta.get("version")
-        if version != FORMAT_VERSION:
-            raise ModelFileError(path, f"field 'meta.version': unknown model format version {version!r} "
-                                       f"(this facesim reads version {FORMAT_VERSION})")
-
-        def arr(key: str) -> np.ndarray:
-            if key not in data.files:
-                raise ModelFileError(path, f"field {key!r} missing (model format version {FORMAT_VERSION})")
-            try:
-                return data[key]
-            except Exception as exc:  # corrupt member: zlib.error, BadZipFile, ValueError ...
-                raise ModelFileError(path, f"field {key!r} unreadable ({type(exc).__name__})") from None
-
-        def m(key: str) -> Any:
-            if key not in meta:
-                raise ModelFileError(path, f"field 'meta.{key}' missing (model format version {FORMAT_VERSION})")
-            return meta[key]
+    with read_npz(path, MODEL_FORMAT) as archive:
+        arr, m = archive.array, archive.field
 
         def surfaces(prefix: str, key: str) -> tuple[RigidSurface, ...]:
             return tuple(RigidSurface(s["name"], s["bone"], arr(f"{prefix}{i}_vertices"), arr(f"{prefix}{i}_faces"))
@@ -608,7 +558,7 @@ def load_model(path) -> FaceModel:
         except ModelFileError:
             raise
         except (FacesimError, KeyError, TypeError) as exc:
-            raise ModelFileError(path, f"inconsistent model data: {exc}") from None
+            raise ModelFileError(archive.path, f"inconsistent model data: {exc}") from None
 
 
 def _renormalise(v: np.ndarray) -> np.ndarray:

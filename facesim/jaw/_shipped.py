@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from functools import lru_cache
-from pathlib import Path
 
-import facesim
+from facesim._files import MESHES
 
 
 @lru_cache(maxsize=1)
@@ -13,4 +12,4 @@ def shipped_model():
     """The immutable ``meshes/face_coarse.npz`` model of the repository holding ``facesim``."""
     from facesim.model import FaceModel
 
-    return FaceModel.load(Path(facesim.__file__).resolve().parent.parent / "meshes" / "face_coarse.npz")
+    return FaceModel.load(MESHES / "face_coarse.npz")

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facesim._files import require_suffix
+from facesim._files import atomic_write, open_npz, require_suffix
 from facesim.errors import FacesimError, ModelFileError
 
 FIT_RIGS = ("posselt", "nlpca", "1dof", "3dof", "5dof", "6dof")
@@ -74,8 +74,6 @@ def _field(data, path, key, shape_ok, expected: str, dtype=np.float64):
 
 def read_poses(path) -> PosesFile:
     """Read and check a poses file (module docstring); one-line errors name the file and field."""
-    from facesim.jaw.rigfile import open_npz
-
     path = Path(path)
     with open_npz(path, "a poses .npz with 'poses (N, 4, 4)'") as data:
         if "poses" not in data.files:
@@ -278,7 +276,6 @@ def cmd_jaw_envelope(args) -> int:
 
 
 def cmd_jaw_generate(args) -> int:
-    from facesim._files import atomic_write
     from facesim.jaw.motion import JawMotion, Subject
     from facesim.jaw.retarget import EXTREMES
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import facesim
+from facesim._files import MESHES
 from facesim.errors import FacesimError
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion, Session, subject_for
@@ -26,11 +26,6 @@ from facesim.model import JawGeometry
 
 RIG_SUFFIX = "_posselt.npz"
 TRAIN_SEED, TEST_SEED = 1, 2      # the sessions a model rig is fitted on and checked against
-
-
-def shipped_folder() -> Path:
-    """The ``meshes/`` folder of the repository holding ``facesim`` (shipped models and rigs)."""
-    return Path(facesim.__file__).resolve().parent.parent / "meshes"
 
 
 def model_rig_path(model_path) -> Path:
@@ -57,9 +52,8 @@ def find_model_rig(geometry: JawGeometry, model_path=None) -> Path | None:
     ``model_path`` (when given), else a shipped ``meshes/*_posselt.npz``; None if no rig there
     records this geometry."""
     candidates = [model_rig_path(model_path)] if model_path is not None else []
-    folder = shipped_folder()
-    if folder.is_dir():
-        candidates += sorted(folder.glob("*" + RIG_SUFFIX))
+    if MESHES.is_dir():
+        candidates += sorted(MESHES.glob("*" + RIG_SUFFIX))
     for path in candidates:
         if not path.is_file():
             continue
@@ -72,4 +66,4 @@ def find_model_rig(geometry: JawGeometry, model_path=None) -> Path | None:
     return None
 
 
-__all__ = ["RIG_SUFFIX", "find_model_rig", "fit_model_rig", "model_motion", "model_rig_path", "shipped_folder"]
+__all__ = ["RIG_SUFFIX", "find_model_rig", "fit_model_rig", "model_motion", "model_rig_path"]

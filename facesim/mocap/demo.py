@@ -30,11 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from facesim._files import atomic_write
+from facesim._files import MESHES, atomic_write
 from facesim.errors import FacesimError
 from facesim.model import FaceModel
 
-MESHES = Path(__file__).resolve().parent.parent.parent / "meshes"
 #: The shipped clip (its truth is ``<stem>_truth.npz`` beside it).
 DEMO_CLIP = MESHES / "demo_clip.c3d"
 #: The model the shipped clip is made on, and the one the demo solves with.

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from facesim import se3
+from facesim._files import MESHES
 from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
 from facesim.jaw.model_rig import (
     TEST_SEED,
@@ -12,7 +13,6 @@ from facesim.jaw.model_rig import (
     fit_model_rig,
     model_motion,
     model_rig_path,
-    shipped_folder,
 )
 from facesim.jaw.motion import JawMotion, Subject, subject_for
 from facesim.jaw.posselt import PosseltRig
@@ -20,13 +20,13 @@ from facesim.model import FaceModel
 from facesim.session import make_jaw_model
 from tests.jaw.test_jaw_cli import run
 
-SHIPPED_RIG = shipped_folder() / "face_coarse_posselt.npz"
-MODELS = [p for p in (shipped_folder() / "face_coarse.npz", shipped_folder() / "face_medium.npz") if p.is_file()]
+SHIPPED_RIG = MESHES / "face_coarse_posselt.npz"
+MODELS = [p for p in (MESHES / "face_coarse.npz", MESHES / "face_medium.npz") if p.is_file()]
 
 
 @pytest.fixture(scope="module")
 def coarse():
-    return FaceModel.load(shipped_folder() / "face_coarse.npz")
+    return FaceModel.load(MESHES / "face_coarse.npz")
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +88,7 @@ def test_fit_model_command(box_model, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "box_posselt.npz" in out and "mean" in out
     rig = PosseltRig.load(model_rig_path(model_path))
-    assert rig.made_for(box_model.jaw) and not rig.made_for(FaceModel.load(shipped_folder() / "face_coarse.npz").jaw)
+    assert rig.made_for(box_model.jaw) and not rig.made_for(FaceModel.load(MESHES / "face_coarse.npz").jaw)
     assert find_model_rig(box_model.jaw, model_path) == model_rig_path(model_path)
     assert find_model_rig(box_model.jaw) is None
     capsys.readouterr()
