@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facesim.controls import Controls, RigidJaw
+from facesim.controls import Controls
+from facesim.kinematics.jaw_models import RigidJaw
 from facesim.fem.equilibrium import FaceSimulator
 from facesim.model import load_model
 

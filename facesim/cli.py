@@ -19,13 +19,15 @@ from pathlib import Path
 
 import facesim
 from facesim._files import MESHES, require_suffix
-from facesim.errors import FacesimError, ModelFileError
+from facesim.constants import CONTACT_STIFFNESS
+from facesim.errors import FacesimError, ModelFileError, SolverError
 from facesim.jaw.cli import add_jaw_commands
 
 RESOLUTIONS = ("test", "coarse", "medium", "paper")
 #: Environment variable naming the model ``facesim demo`` uses instead of the shipped one.
 MODEL_ENV = "FACESIM_MODEL"
 EXIT_USAGE = 2
+EXIT_SOLVER = 1   # a numerical failure outside a frame
 
 
 # ------------------------------------------------------------------ helpers
@@ -293,17 +295,14 @@ def cmd_simulate(args) -> int:
     frames, A = read_activations_csv(args.activations, model.muscles.names)
     jaw_model = args.jaw_model
     if jaw_model == "posselt":   # the model's own rig: the file beside the model, or the shipped one
-        from facesim.session import make_jaw_model
+        from facesim.kinematics.jaw_models import make_jaw_model
 
         jaw_model = make_jaw_model(model, "posselt", model_path=args.model)
     T = None
     if args.jaw:
         jaw_frames, T = read_jaw_csv(args.jaw, model, jaw_model)
         check_same_frames(args.jaw, jaw_frames, args.activations, frames)
-    from facesim.contact.scene import parse_collider_spec
-
-    base = Path(args.activations).parent
-    colliders = [parse_collider_spec(spec, base, i) for i, spec in enumerate(args.collider)]
+    colliders = _colliders(args, Path(args.activations).parent)
     options = SimulateOptions(newton=NewtonOptions(linear_solver=args.solver), fps=args.fps,
                               render=args.render or args.video, video=args.video, view=args.view, size=args.size,
                               teeth_contact=args.teeth_contact, lip_contact=args.lip_contact,
@@ -319,11 +318,7 @@ def cmd_simulate(args) -> int:
         print(f"video: {s['video_note']}")
     elif "video" in s["outputs"]:
         print(f"video: {s['outputs']['video']}")
-    bad = s["unconverged_frames"]
-    if bad:
-        shown = ", ".join(map(str, bad[:10])) + (", ..." if len(bad) > 10 else "")
-        print(f"facesim: warning: {len(bad)} of {s['finished_frames']} frames did not converge (frame {shown}); "
-              f"flagged in {Path(args.output) / 'frames.csv'}, their markers written as NaN", file=sys.stderr)
+    _warn_unconverged(s, Path(args.output) / "frames.csv")
     return 0
 
 
@@ -359,8 +354,9 @@ def cmd_solve_mocap(args) -> int:
         frames, P = frames[keep], P[keep]
     # workers build their simulator from the spec (model path, options); built here first, so a bad
     # jaw model fails before any worker starts
-    spec = SimulatorSpec.of(args.model, EquilibriumOptions(newton=NewtonOptions(linear_solver=args.solver)),
-                            args.jaw_model)
+    setup = EquilibriumOptions(newton=NewtonOptions(linear_solver=args.solver),
+                               **_mocap_contact(args, model, Path(args.markers).parent))
+    spec = SimulatorSpec.of(args.model, setup, args.jaw_model)
     spec.build()
     options = TrackOptions(fit=FitOptions(noise=args.noise, max_steps=args.max_steps), head=args.head,
                            robust=not args.no_robust, loss=args.loss, loss_scale=args.loss_scale,
@@ -384,7 +380,37 @@ def cmd_solve_mocap(args) -> int:
     rms = s["marker_rms"]
     print(f"solved {s['solved_frames']} frames ({s['reused_frames']} reused) in {s['seconds']:.1f} s; marker RMS "
           f"median {np.median(rms) if rms else float('nan'):.3f} mm -> {args.output}")
+    _warn_unconverged(s, Path(args.output) / "frames.csv")
     return 0
+
+
+def _mocap_contact(args, model, base: Path) -> dict:
+    """The contact set-up of solve-mocap: lip and teeth contact on where the model has the surfaces
+    (as Sifakis 2005 tracked), unless --no-contact; --lip-contact / --teeth-contact insist on them."""
+    from facesim.fem.equilibrium import has_lips, has_teeth
+
+    if args.no_contact and (args.lip_contact or args.teeth_contact):
+        raise FacesimError("--no-contact: excludes --lip-contact and --teeth-contact")
+    lips = args.lip_contact or (not args.no_contact and has_lips(model))
+    teeth = args.teeth_contact or (not args.no_contact and has_teeth(model))
+    state = "off (--no-contact)" if args.no_contact else \
+        f"lips {'on' if lips else 'off (no lip surfaces)'}, teeth {'on' if teeth else 'off (no teeth)'}"
+    colliders = _colliders(args, base)
+    print(f"contact: {state}" + (f", {len(colliders)} collider(s)" if colliders else ""))
+    return {"lip_contact": lips, "teeth_contact": teeth, "colliders": tuple(colliders),
+            "contact_stiffness": args.contact_stiffness}
+
+
+def _warn_unconverged(s: dict, log: Path) -> None:
+    """One warning line naming the frames that did not converge (with why, where known)."""
+    bad = s.get("unconverged_frames", [])
+    why = s.get("unconverged_reasons", {})
+    if bad:
+        shown = ", ".join(f"{k}" + (f" ({why[str(k)]})" if why.get(str(k)) else "") for k in bad[:10]) + \
+            (", ..." if len(bad) > 10 else "")
+        total = s.get("finished_frames", s.get("frames"))
+        print(f"facesim: warning: {len(bad)} of {total} frames did not converge (frame {shown}); flagged in {log}",
+              file=sys.stderr)
 
 
 def cmd_demo(args) -> int:
@@ -411,6 +437,32 @@ def cmd_demo(args) -> int:
 
 
 # ------------------------------------------------------------------ parser
+def _add_contact_options(parser, relative_to: str, default_on: bool = False) -> None:
+    """The contact options of ``simulate`` and ``solve-mocap`` (one meaning in both)."""
+    parser.add_argument("--collider", action="append", default=[], metavar="SPEC",
+                        help="an external rigid object the skin cannot enter (repeatable): KIND:key=value,... "
+                             "e.g. 'sphere:radius=12,path=ball.csv' (centre per frame from frame,x,y,z rows, mm), "
+                             "'sphere:radius=12,centre=55:-30:70', 'capsule:radius=4,a=0:-40:90,b=0:-40:130', "
+                             "'plane:point=0:-70:0,normal=0:1:0', 'mesh:file=cup.stl,path=cup.csv'; optional "
+                             "bone=cranium|jaw carries it with a bone, name=LABEL. Relative files are looked up "
+                             f"next to {relative_to}")
+    on = " (default: on where the model has the surfaces)" if default_on else ""
+    parser.add_argument("--teeth-contact", action="store_true", help=f"keep the lips out of the teeth{on}")
+    parser.add_argument("--lip-contact", action="store_true",
+                        help=f"keep the upper and lower lips out of each other (self-contact){on}")
+    if default_on:
+        parser.add_argument("--no-contact", action="store_true",
+                            help="no lip and no teeth contact (the lips may pass through each other and the teeth)")
+    parser.add_argument("--contact-stiffness", type=float, default=CONTACT_STIFFNESS, metavar="K",
+                        help="penalty stiffness of all contact, N/mm^3 (default: %(default)s)")
+
+
+def _colliders(args, base: Path) -> list:
+    from facesim.contact.scene import parse_collider_spec
+
+    return [parse_collider_spec(spec, base, i) for i, spec in enumerate(args.collider)]
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="facesim",
@@ -537,18 +589,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "or a fitted jaw rig (facesim jaw fit): posselt:RIG.npz with frame,sx,sy,sz sliders in "
                                "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3; posselt alone is the model's own rig "
                                "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")
-    simulate.add_argument("--collider", action="append", default=[], metavar="SPEC",
-                          help="an external rigid object the skin cannot enter (repeatable): KIND:key=value,... "
-                               "e.g. 'sphere:radius=12,path=ball.csv' (centre per frame from frame,x,y,z rows, mm), "
-                               "'sphere:radius=12,centre=55:-30:70', 'capsule:radius=4,a=0:-40:90,b=0:-40:130', "
-                               "'plane:point=0:-70:0,normal=0:1:0', 'mesh:file=cup.stl,path=cup.csv'; optional "
-                               "bone=cranium|jaw carries it with a bone, name=LABEL. Relative files are looked up "
-                               "next to A.csv")
-    simulate.add_argument("--teeth-contact", action="store_true", help="keep the lips out of the teeth")
-    simulate.add_argument("--lip-contact", action="store_true",
-                          help="keep the upper and lower lips out of each other (self-contact)")
-    simulate.add_argument("--contact-stiffness", type=float, default=1.0, metavar="K",
-                          help="penalty stiffness of all contact, N/mm^3 (default: %(default)s)")
+    _add_contact_options(simulate, "A.csv")
     simulate.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
     simulate.add_argument("--render", action="store_true",
                           help="also render every frame to OUT/png/frame_KKKKK.png (off screen)")
@@ -641,6 +682,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "markers, stabilised; right: the simulated face with its markers and lines to the "
                             "captured ones) into OUT/render/frame_KKKKK.png and OUT/render/video.mp4 (an animated "
                             "GIF video.gif when imageio-ffmpeg is not installed)")
+    _add_contact_options(solve, "F", default_on=True)
     solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     solve.set_defaults(func=cmd_solve_mocap)
     add_jaw_commands(commands)
@@ -658,6 +700,9 @@ def main(argv=None) -> int:
     except FacesimError as exc:
         print(f"facesim: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_USAGE
+    except SolverError as exc:   # a numerical failure outside a frame (frames catch their own)
+        print(f"facesim: solver failed: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_SOLVER
     except OSError as exc:  # unwritable output folder, disk full, a folder where a file is expected ...
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"facesim: error: {where}{exc.strerror or exc}", file=sys.stderr)

@@ -1,7 +1,7 @@
 """Controls of the face: muscle activations, jaw pose and head pose (DESIGN.md).
 
 ``Controls(a, jaw, head)``: ``a (n_muscles,)`` activations in [0, 1]; ``jaw`` the jaw model's
-parameters (for :class:`RigidJaw`, a 4x4 rigid transform of the mandible relative to the skull);
+parameters (for :class:`~facesim.kinematics.jaw_models.RigidJaw`, a 4x4 rigid transform of the mandible relative to the skull);
 ``head`` an optional 4x4 transform of the skull in the world (identity when None).
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 from facesim.errors import FacesimError
 
 
-def _transform(T, name: str) -> np.ndarray | None:
+def as_transform(T, name: str) -> np.ndarray | None:
     if T is None:
         return None
     T = np.array(T, dtype=np.float64)
@@ -36,7 +36,7 @@ class Controls:
             raise FacesimError("controls.a: activations must be finite")
         a.setflags(write=False)
         object.__setattr__(self, "a", a)
-        object.__setattr__(self, "head", _transform(self.head, "controls.head"))
+        object.__setattr__(self, "head", as_transform(self.head, "controls.head"))
 
     @staticmethod
     def rest(n_muscles: int) -> "Controls":
@@ -53,25 +53,3 @@ def rotation_about(axis_angle, centre) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = c - R @ c
     return T
-
-
-class RigidJaw:
-    """The simplest jaw model: ``controls.jaw`` is the mandible's 4x4 rigid transform relative to the
-    skull (None = rest). Scripted use; the kinematic and data-driven jaw models follow the same
-    interface (``transform(q) -> 4x4``)."""
-
-    name = "rigid"
-
-    def transform(self, q) -> np.ndarray:
-        return np.eye(4) if q is None else _transform(q, "controls.jaw")
-
-    @staticmethod
-    def from_rotation(model, opening: float = 0.0, rotvec=None, translation=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """Jaw transform: rotation about the intercondylar axis (``opening`` rad, positive opens the
-        mouth) or by a general ``rotvec`` about the condyle midpoint, then a translation (mm)."""
-        geo = model.jaw
-        if rotvec is None:
-            rotvec = opening * geo.u   # u points right -> left; positive rotation about it drops the chin
-        T = rotation_about(rotvec, geo.midpoint)
-        T[:3, 3] += np.asarray(translation, dtype=np.float64)
-        return T

@@ -41,16 +41,16 @@ import numpy as np
 import facesim
 from facesim._csv import frame_numbers, numbers, read_table
 from facesim._files import atomic_write
+from facesim.constants import CONTACT_STIFFNESS
 from facesim.errors import FacesimError
 from facesim.fem.newton import NewtonOptions
 from facesim.model import FaceModel
 
 FRAME_LOG_COLUMNS = ("frame", "converged", "iterations", "relative_residual", "residual_N", "seconds",
-                     "linear_iterations", "penetration_mm", "error")
+                     "linear_iterations", "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm",
+                     "inverted_tets", "min_J", "error")
 JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
 JAW_OPENING = ("opening",)
-JAW_CONDYLE = ("opening", "left_slide", "right_slide")
-JAW_MODELS = ("rigid", "sliding-condyle")
 _OUTPUT_FILES = ("markers.csv", "markers.trc", "frames.csv", "report.json", "video.mp4", "video.gif")
 _FRAME_FILE = re.compile(r"frame_\d+\.(ply|npz|png)$")
 
@@ -85,30 +85,25 @@ def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
     return frames, A
 
 
-def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.ndarray, np.ndarray]:
-    """Read a jaw CSV and return ``frames (F,) int64`` and the jaw controls of ``jaw_model``:
-    ``(F, 4, 4)`` mandible transforms for the rigid jaw, ``(F, 3)`` parameters (opening rad,
-    right slide mm, left slide mm) for the sliding-condyle jaw.
+def read_jaw_csv(path, model: FaceModel, jaw_model="rigid") -> tuple[np.ndarray, np.ndarray]:
+    """Read a jaw CSV and return ``frames (F,) int64`` and the jaw controls of ``jaw_model`` (a
+    :class:`~facesim.kinematics.jaw_models.JawModel` or its name): ``(F, 4, 4)`` mandible
+    transforms for the rigid jaw, ``(F, n_params)`` parameters for every other jaw model.
 
-    ``jaw_model="rigid"``, two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about
-    the condyle midpoint ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a
-    rotation (rad, positive opens the mouth) about the intercondylar axis. Both through
-    :meth:`facesim.controls.RigidJaw.from_rotation`.
-    ``jaw_model="sliding-condyle"``: ``frame,opening,left_slide,right_slide`` (rad, mm, mm) through
-    :class:`facesim.kinematics.condyle.SlidingCondyleJaw` (Sifakis 2005 section 8), each value
-    within the model's range (opening in [0, max_opening], slides in [0, track_length]); note
-    the column order of the file (left before right) differs from the parameter order.
+    Rigid jaw, two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about the condyle
+    midpoint ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a rotation (rad,
+    positive opens the mouth) about the intercondylar axis. Both through
+    :meth:`facesim.kinematics.jaw_models.RigidJaw.from_rotation`.
+    Any other jaw model: ``frame,<param_names>`` -- for the sliding-condyle jaw
+    ``frame,opening,right_slide,left_slide`` (rad, mm, mm; Sifakis 2005 section 8), for a Posselt rig
+    ``frame,sx,sy,sz``, for an NLPCA rig ``frame,d1,d2,d3`` -- each value within the model's bounds.
+    Columns are matched by name, in any order.
     """
-    from facesim.controls import RigidJaw
+    from facesim.kinematics.jaw_models import RigidJaw, make_jaw_model
 
-    if isinstance(jaw_model, str) and jaw_model not in JAW_MODELS:   # a rig; unknown names are refused there
-        from facesim.session import make_jaw_model
-
-        jaw_model = make_jaw_model(model, jaw_model)
-    if not isinstance(jaw_model, str):
-        return _read_rig_csv(path, jaw_model)
-    if jaw_model == "sliding-condyle":
-        return _read_condyle_csv(path, model)
+    jaw_model = make_jaw_model(model, jaw_model)
+    if jaw_model.n_params:
+        return _read_parameter_csv(path, jaw_model)
     table = read_table(path, "jaw file", example="frame,rx,ry,rz,tx,ty,tz' or 'frame,opening")
     columns = set(table.header[1:])
     if columns == set(JAW_OPENING):
@@ -126,14 +121,13 @@ def read_jaw_csv(path, model: FaceModel, jaw_model: str = "rigid") -> tuple[np.n
     return frame_numbers(table), T.reshape(-1, 4, 4)
 
 
-def _read_rig_csv(path, jaw) -> tuple[np.ndarray, np.ndarray]:
-    """``frame,<p1>,<p2>,...``: the parameters of a fitted rig (``jaw.param_names``, e.g. sx,sy,sz
-    sliders of a Posselt rig or d1,d2,d3 of an NLPCA rig) within the rig's bounds."""
-    names = tuple(getattr(jaw, "param_names", tuple(f"q{k}" for k in range(jaw.n_params))))
+def _read_parameter_csv(path, jaw) -> tuple[np.ndarray, np.ndarray]:
+    """``frame,<jaw.param_names>``: the parameters of a jaw model within its bounds."""
+    names = tuple(jaw.param_names)
     table = read_table(path, "jaw file", example="frame," + ",".join(names))
     if set(table.header[1:]) != set(names):
         raise FacesimError(f"{table.path}: line {table.header_line}: columns {','.join(table.header[1:])}; expected "
-                           f"'frame,{','.join(names)}' for the {jaw.name} jaw rig")
+                           f"'frame,{','.join(names)}' for the {jaw.name} jaw")
     q = numbers(table, names)
     lo, hi = np.asarray(jaw.bounds, dtype=np.float64).T
     tol = 1e-9 + 1e-6 * (hi - lo)
@@ -143,27 +137,6 @@ def _read_rig_csv(path, jaw) -> tuple[np.ndarray, np.ndarray]:
         raise FacesimError(f"{table.path}: data row {r + 1}, column {names[c]!r}: {q[r, c]:g} outside "
                            f"[{lo[c]:g}, {hi[c]:g}]")
     return frame_numbers(table), np.ascontiguousarray(q)
-
-
-def _read_condyle_csv(path, model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
-    from facesim.kinematics.condyle import SlidingCondyleJaw
-
-    table = read_table(path, "jaw file", example="frame,opening,left_slide,right_slide")
-    columns = tuple(table.header[1:])
-    if set(columns) != set(JAW_CONDYLE):
-        raise FacesimError(f"{table.path}: line {table.header_line}: columns {','.join(columns)}; expected "
-                           "'frame,opening,left_slide,right_slide' (rad, mm, mm) for the sliding-condyle jaw")
-    q = numbers(table, JAW_CONDYLE)
-    jaw = SlidingCondyleJaw(model.jaw)
-    lo, hi = jaw.bounds[:, 0], jaw.bounds[:, 1]   # (opening, right slide, left slide)
-    p = q[:, [0, 2, 1]]
-    bad = np.argwhere((p < lo - 1e-9) | (p > hi + 1e-9))
-    if len(bad):
-        r, c = bad[0]
-        name = ("opening", "right_slide", "left_slide")[c]
-        raise FacesimError(f"{table.path}: data row {r + 1}, column {name!r}: {p[r, c]:g} outside "
-                           f"[{lo[c]:g}, {hi[c]:g}] ({'rad' if c == 0 else 'mm'})")
-    return frame_numbers(table), np.ascontiguousarray(p)
 
 
 def check_same_frames(path, frames, reference_path, reference_frames) -> None:
@@ -196,15 +169,13 @@ class SimulateOptions:
     size: tuple[int, int] = (640, 640)
     teeth_contact: bool = False
     lip_contact: bool = False
-    contact_stiffness: float = 1.0
+    contact_stiffness: float = CONTACT_STIFFNESS
 
     def __post_init__(self):
         if not (math.isfinite(self.fps) and self.fps > 0):
             raise FacesimError(f"fps: expected a frame rate > 0, got {self.fps}")
         if self.video:
             object.__setattr__(self, "render", True)
-        if not (math.isfinite(self.contact_stiffness) and self.contact_stiffness > 0):
-            raise FacesimError(f"contact stiffness: expected a positive number (N/mm^3), got {self.contact_stiffness}")
 
 
 class _Out:
@@ -301,29 +272,34 @@ def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str) -> N
                                             converged=converged, error=error))
 
 
-def _frame_row(k: int, converged: bool, report, seconds: float, error: str = "", penetration: float = 0.0) -> dict:
-    if report is None:
-        return {"frame": k, "converged": 0, "iterations": 0, "relative_residual": math.nan, "residual_N": math.nan,
-                "seconds": seconds, "linear_iterations": 0, "penetration_mm": penetration, "error": error}
-    residual = float(report.residuals[-1]) if report.residuals else math.nan
+def _frame_row(k: int, f, seconds: float) -> dict:
+    """The ``frames.csv`` row of the :class:`~facesim.session.Frame` ``f`` solved as frame ``k``."""
+    report = f.report
+    residual = float(report.residuals[-1]) if report is not None and report.residuals else math.nan
     # SolveReport.relative_residual divides by the cold-start force, which is 0 for a frame at rest
-    relative = residual / report.force_scale if report.force_scale > 0 else math.nan
-    return {"frame": k, "converged": int(converged), "iterations": int(report.iterations),
+    relative = residual / report.force_scale if report is not None and report.force_scale > 0 else math.nan
+    return {"frame": k, "converged": int(f.converged), "iterations": 0 if report is None else int(report.iterations),
             "relative_residual": relative, "residual_N": residual, "seconds": seconds,
-            "linear_iterations": int(sum(report.linear_iterations)), "penetration_mm": penetration, "error": error}
+            "linear_iterations": 0 if report is None else int(sum(report.linear_iterations)),
+            **{c: f.measures.get(c, math.nan) for c in _MEASURES}, "inverted_tets": int(f.inverted),
+            "min_J": f.min_J, "error": f.error}
+
+
+_MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
+_FORMATS = {"relative_residual": "{:.3e}", "residual_N": "{:.3e}", "seconds": "{:.3f}", "min_J": "{:.4g}",
+            **dict.fromkeys(_MEASURES, "{:.4f}")}
 
 
 def _row_line(row: dict) -> str:
-    fmt = {"relative_residual": "{:.3e}", "residual_N": "{:.3e}", "seconds": "{:.3f}", "penetration_mm": "{:.4f}"}
-    return _csv_line([fmt.get(c, "{}").format(row[c]) for c in FRAME_LOG_COLUMNS])
+    return _csv_line([_FORMATS.get(c, "{}").format(row[c]) for c in FRAME_LOG_COLUMNS])
 
 
 def _parse_row(line: str) -> dict:
     values = next(csv.reader([line]))
     row = dict(zip(FRAME_LOG_COLUMNS, values))
-    for c in ("frame", "converged", "iterations", "linear_iterations"):
+    for c in ("frame", "converged", "iterations", "linear_iterations", "inverted_tets"):
         row[c] = int(row[c])
-    for c in ("relative_residual", "residual_N", "seconds", "penetration_mm"):
+    for c in ("relative_residual", "residual_N", "seconds", "min_J", *_MEASURES):
         row[c] = float(row[c])
     return row
 
@@ -372,14 +348,11 @@ def _validate(model: FaceModel, activations, frames, jaw, jaw_model):
             np.any(np.diff(frames) <= 0):
         raise FacesimError(f"frames: expected {len(A)} increasing integer frame numbers >= 0")
     frames = frames.astype(np.int64)
-    n_params = getattr(jaw_model, "n_params", None)
-    shape, what = ((4, 4), "4x4 transforms") if n_params is None else \
-        ((n_params,), f"rows of {n_params} {jaw_model.name} jaw parameters")
+    shape = np.shape(jaw_model.rest)
+    what = "4x4 transforms" if not jaw_model.n_params else \
+        f"rows of {jaw_model.n_params} {jaw_model.name} jaw parameters"
     if jaw is None:
-        from facesim.session import jaw_rest
-
-        rest = np.eye(4) if n_params is None else jaw_rest(jaw_model)
-        J = np.broadcast_to(rest, (len(A), *shape))
+        J = np.broadcast_to(jaw_model.rest, (len(A), *shape))
     else:
         J = np.asarray(jaw, dtype=np.float64)
         if J.shape != (len(A), *shape) or not np.isfinite(J).all():
@@ -484,10 +457,15 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     from tqdm import tqdm
 
     from facesim.controls import Controls
+    from facesim.fem.equilibrium import EquilibriumOptions
+    from facesim.kinematics.jaw_models import make_jaw_model
     from facesim.mocap.io import marker_csv_header, marker_csv_line, read_markers_csv, write_trc
-    from facesim.session import Simulation, make_jaw_model
+    from facesim.session import Simulation
 
     options = options or SimulateOptions()
+    setup = EquilibriumOptions(newton=options.newton, teeth_contact=options.teeth_contact,
+                               lip_contact=options.lip_contact, colliders=tuple(colliders),
+                               contact_stiffness=options.contact_stiffness)   # checked before anything runs
     jaw_model = make_jaw_model(model, jaw_model)
     A, frames, J = _validate(model, activations, frames, jaw, jaw_model)
     sim = None
@@ -495,9 +473,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     def simulation() -> Simulation:   # built on first use: a run with nothing left to do skips the setup
         nonlocal sim
         if sim is None:
-            sim = Simulation(model, jaw_model, colliders, teeth_contact=options.teeth_contact,
-                             lip_contact=options.lip_contact, contact_stiffness=options.contact_stiffness,
-                             newton=options.newton)
+            sim = Simulation(model, jaw_model, options=setup)
         return sim
 
     if options.render:
@@ -521,7 +497,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         "options": {"solver": options.newton.linear_solver, "rtol": options.newton.rtol,
                     "max_iterations": options.newton.max_iterations, "fps": options.fps, "render": options.render,
                     "video": options.video, "view": options.view, "size": list(options.size), "resume": resume,
-                    "jaw_model": getattr(jaw_model, "name", type(jaw_model).__name__),
+                    "jaw_model": jaw_model.name,
                     "teeth_contact": options.teeth_contact, "lip_contact": options.lip_contact,
                     "contact_stiffness": options.contact_stiffness, "colliders": len(colliders)},
         "frames": len(frames), "first_frame": int(frames[0]), "last_frame": int(frames[-1]),
@@ -556,7 +532,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
                 _draw(out, model, k, x, options, "" if converged else " (not converged)", colliders=f.colliders)
                 P = model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan)
                 marker_log.add(marker_csv_line(k, P))
-                row = _frame_row(k, converged, f.report, seconds, f.error, f.penetration)
+                row = _frame_row(k, f, seconds)
                 frame_log.add(_row_line(row))   # last: the frame is complete once this row is on disk
                 rows.append(row)
                 if converged:
@@ -593,6 +569,9 @@ def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
         "unconverged_frames": [r["frame"] for r in failed],
         "errors": {str(r["frame"]): r["error"] for r in failed if r["error"]},
         "newton_iterations": int(sum(r["iterations"] for r in rows)),
+        "frames_with_inverted_tets": [r["frame"] for r in rows if r["inverted_tets"] != 0],
+        "min_J": float(min((r["min_J"] for r in rows), default=math.nan)),
+        **{f"max_{c}": float(np.nanmax([r[c] for r in rows] + [0.0])) for c in _MEASURES},
         "solve_seconds": round(float(sum(r["seconds"] for r in rows)), 3),
         "wall_seconds": round(wall, 3),
         "outputs": {"skin": str(out.root / "skin"), "state": str(out.root / "state"),

@@ -9,7 +9,8 @@ from facesim.controls import Controls
 from facesim.errors import FacesimError
 from facesim.fem.newton import NewtonOptions
 from facesim.kinematics.condyle import SlidingCondyleJaw
-from facesim.session import Simulation, activation_vector, make_jaw_model
+from facesim.session import Simulation, activation_vector
+from facesim.kinematics.jaw_models import make_jaw_model
 
 DIRECT = NewtonOptions(linear_solver="direct")
 

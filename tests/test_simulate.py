@@ -15,7 +15,8 @@ import pytest
 from PIL import Image
 
 from facesim.cli import main
-from facesim.controls import RigidJaw, rotation_about
+from facesim.controls import rotation_about
+from facesim.kinematics.jaw_models import RigidJaw
 from facesim.errors import FacesimError
 from facesim.fem.newton import NewtonOptions
 from facesim.mocap.io import read_markers_csv, read_trc
@@ -24,7 +25,7 @@ from facesim.simulate import SimulateOptions, read_activations_csv, read_jaw_csv
 ACTIVATIONS = "frame,zygomaticus_major_L,orbicularis_oris\n0,0,0\n1,1,0\n2,0.5,0.3\n"
 JAW = "frame,opening\n0,0\n1,0\n2,0.05\n"
 FRAME_LOG = ["frame", "converged", "iterations", "relative_residual", "residual_N", "seconds", "linear_iterations",
-             "penetration_mm", "error"]
+             "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm", "inverted_tets", "min_J", "error"]
 
 
 def write(path, text):

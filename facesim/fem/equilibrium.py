@@ -1,8 +1,17 @@
-"""Equilibrium of the face: flesh and muscles under bone attachments (Dirichlet conditions).
+"""Equilibrium of the face: flesh and muscles under bone attachments (Dirichlet conditions),
+with the one contact set-up every entry point shares.
 
-``FaceSimulator(model)`` precomputes everything that depends only on the mesh (rest shape,
-pattern, colouring, terms) and keeps the linear solver, so an AMG hierarchy carries over from
-frame to frame. ``equilibrium(model, controls, x0)`` is the one-shot convenience.
+``FaceSimulator(model, options, jaw_model)`` precomputes everything that depends only on the mesh
+(rest shape, pattern, colouring, terms) and keeps the linear solver, so an AMG hierarchy carries
+over from frame to frame. Its :class:`EquilibriumOptions` say which contact the face has: the lips
+kept out of the teeth (``teeth_contact``), the upper and lower lips out of each other
+(``lip_contact``), the skin out of external ``colliders`` (fixed, scripted in time or carried by
+a bone), all with one penalty ``contact_stiffness``. ``facesim simulate``, the
+:class:`~facesim.session.Simulation` scripting API, the inverse solver's ``fit_frame`` / ``track``
+and ``facesim solve-mocap`` all solve through :meth:`FaceSimulator.equilibrium`, whose energy is
+flesh + muscles + :meth:`FaceSimulator.contact_terms` posed for the controls and the frame number;
+the implicit Jacobian differentiates the same sum. ``equilibrium(model, controls, x0)`` is the
+one-shot convenience.
 """
 
 from __future__ import annotations
@@ -12,13 +21,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facesim.controls import Controls, RigidJaw
-from facesim.errors import FacesimError
+from facesim.constants import CONTACT_STIFFNESS
+from facesim.contact.penalty import ContactTerm, node_areas
+from facesim.contact.scene import as_scene_collider
+from facesim.controls import Controls
+from facesim.errors import FacesimError, SolverError
 from facesim.fem.linear import make_linear_solver
 from facesim.fem.material import DEFAULT_CLAMP
 from facesim.fem.newton import NewtonOptions, Problem, SolveReport, newton
 from facesim.fem.system import DofSystem, RestShape
 from facesim.fem.terms import ElasticTerm, MuscleTerm
+from facesim.kinematics.jaw_models import JawModel, RigidJaw, make_jaw_model
 from facesim.model import FaceModel
 from facesim.se3 import interpolate_rigid, rigid_fit
 
@@ -29,17 +42,50 @@ class EquilibriumOptions:
     value clamp of the invertible flesh; substeps : when a solve fails, it is retried as a
     sequence of this many equilibria along the way from the start (bones interpolated on SE(3),
     activations linearly from the start's when starting from rest); 1 disables the retry.
+
+    Contact (penalty energy terms, all with ``contact_stiffness`` N/mm^3: pressure per mm of
+    penetration, area-weighted):
+
     teeth_contact : the lip surfaces (``model.lip_upper``, ``lip_lower``) are kept out of the teeth
-    colliders, which move with their bones (penalty ``contact_stiffness``, area-weighted; the
-    rest shape's own clearance, which the mesh envelope can make slightly negative, is the
-    zero of the penalty so the rest shape stays an equilibrium)."""
+        colliders, which move with their bones (the rest shape's own clearance, which the mesh
+        envelope can make slightly negative, is the zero of the penalty so the rest shape stays an
+        equilibrium);
+    lip_contact : the upper and lower lips are kept out of each other
+        (:func:`~facesim.contact.self_contact.lip_contact_term`);
+    colliders : external colliders the skin cannot enter: :class:`~facesim.contact.Collider`, bare
+        shapes, :class:`~facesim.contact.KinematicPath` (posed at the frame number) or
+        :class:`~facesim.contact.scene.SceneCollider` (optionally carried by a bone).
+    """
 
     newton: NewtonOptions = NewtonOptions()
     volumetric: str = "log"
     clamp: float = DEFAULT_CLAMP
     substeps: int = 4    # on failure, retry moving bones and activations there in this many steps
     teeth_contact: bool = False
-    contact_stiffness: float = 1.0   # N/mm^3 (penalty per mm of penetration per mm^2 of lip surface)
+    lip_contact: bool = False
+    colliders: tuple = ()
+    contact_stiffness: float = CONTACT_STIFFNESS
+
+    def __post_init__(self):
+        k = self.contact_stiffness
+        if not (isinstance(k, (int, float)) and np.isfinite(k) and k > 0):
+            raise FacesimError(f"contact stiffness: expected a positive number (N/mm^3), got {k}")
+        object.__setattr__(self, "colliders", tuple(as_scene_collider(c, i) for i, c in enumerate(self.colliders)))
+
+    @property
+    def contact(self) -> bool:
+        """Whether any contact term is on."""
+        return bool(self.teeth_contact or self.lip_contact or self.colliders)
+
+
+def has_lips(model: FaceModel) -> bool:
+    """Whether ``model`` has upper and lower lip surfaces (what lip contact needs)."""
+    return bool(len(model.lip_upper) and len(model.lip_lower))
+
+
+def has_teeth(model: FaceModel) -> bool:
+    """Whether ``model`` has lip surfaces and teeth colliders (what teeth contact needs)."""
+    return has_lips(model) and any("teeth" in s.name for s in model.colliders)
 
 
 @dataclass
@@ -66,16 +112,16 @@ class Equilibrium:
 class FaceSimulator:
     """Quasistatic simulator of one :class:`FaceModel`.
 
-    Parameters: ``model``; ``options`` (:class:`EquilibriumOptions`); ``jaw_model`` mapping
-    ``controls.jaw`` to the mandible's 4x4 transform relative to the skull (default
-    :class:`~facesim.controls.RigidJaw`); ``gain (n_muscles,)`` per-muscle scale of the active
+    Parameters: ``model``; ``options`` (:class:`EquilibriumOptions`, with the contact set-up);
+    ``jaw_model``: a :class:`~facesim.kinematics.jaw_models.JawModel` or its name (see
+    :func:`~facesim.kinematics.jaw_models.make_jaw_model`; default the rigid jaw); ``gain (n_muscles,)`` per-muscle scale of the active
     force-length curve (exaggeration, Sifakis 2005 Fig. 8).
     """
 
     def __init__(self, model: FaceModel, options: EquilibriumOptions | None = None, jaw_model=None, gain=None):
         self.model = model
         self.options = options or EquilibriumOptions()
-        self.jaw_model = jaw_model or RigidJaw()
+        self.jaw_model: JawModel = RigidJaw() if jaw_model is None else make_jaw_model(model, jaw_model)
         self.rest = RestShape(model.X, model.tets)
         self.elems = np.flatnonzero(model.simulated)
         n = model.n_nodes
@@ -94,7 +140,14 @@ class FaceSimulator:
                                  elems=self.elems)
         self.linear = make_linear_solver(self.options.newton.linear_solver)
         self._laplace = None
-        self._teeth = None
+        self._teeth = None   # (lip nodes, teeth SDFs with their bones, weights, margin), built on first use
+        self._lips = None    # the lip self-contact term, built on first use
+        self._skin = None    # the skin-vs-external-colliders term (colliders posed per frame)
+        self._teeth_rest = None   # per lip node: min(0, rest signed distance to the teeth), mm
+        if self.options.teeth_contact:
+            self._teeth_setup()   # a model without teeth or lips is refused here, not in a frame
+        if self.options.lip_contact:
+            self.lip_term()
 
     def _harmonic(self):
         """Factorised graph Laplacian of the simulated mesh (edge weights 1/length), free x fixed split."""
@@ -140,28 +193,100 @@ class FaceSimulator:
     def terms(self):
         return (self.elastic, self.muscle)
 
-    def teeth_term(self, controls: Controls):
-        """The lips-against-teeth :class:`~facesim.contact.ContactTerm` posed for ``controls`` (or None)."""
-        if not self.options.teeth_contact:
-            return None
-        from facesim.contact import Collider, ContactTerm, MeshSDF, node_areas
-
-        m = self.model
+    # ------------------------------------------------------------------ contact
+    def _teeth_setup(self):
+        """Lip nodes, the teeth SDFs with their bones, area weights and the penalty's zero (mm)."""
         if self._teeth is None:
+            from facesim.contact.sdf import MeshSDF
+
+            m = self.model
             tris = np.concatenate([m.lip_upper, m.lip_lower])
             nodes = np.unique(tris)
             teeth = [(MeshSDF.from_mesh(s.vertices, s.faces, spacing=1.0, name=s.name), s.bone)
                      for s in m.colliders if "teeth" in s.name]
             if not teeth or not len(nodes):
-                raise FacesimError("teeth_contact: the model has no teeth colliders or no lip surfaces")
+                raise FacesimError("teeth contact: the model has no teeth colliders or no lip surfaces")
             rest = min(float(sdf.distance(m.X[nodes]).min()) for sdf, _ in teeth)
+            # margin < 0: the penalty starts below the rest clearance
             self._teeth = (nodes, teeth, node_areas(m.X, tris)[nodes], min(0.0, rest) - 0.05)
-        nodes, teeth, weights, margin = self._teeth
+        return self._teeth
+
+    def teeth_term(self, controls: Controls, force: bool = False):
+        """The lips-against-teeth :class:`~facesim.contact.ContactTerm` posed for ``controls`` (None
+        without teeth contact, unless ``force``: then also for measuring)."""
+        if not (self.options.teeth_contact or force):
+            return None
+        nodes, teeth, weights, margin = self._teeth_setup()
         Hc, Hj = self.bone_transforms(controls)
+        from facesim.contact.sdf import Collider
+
         colliders = [Collider(sdf, Hc if bone == "cranium" else Hj) for sdf, bone in teeth]
-        # margin < 0: the penalty starts below the rest clearance
         return ContactTerm(nodes, colliders, stiffness=self.options.contact_stiffness, margin=margin,
                            weights=weights)
+
+    def lip_term(self):
+        """The upper-lip-against-lower-lip :class:`~facesim.contact.SurfaceContactTerm`."""
+        if self._lips is None:
+            if not has_lips(self.model):
+                raise FacesimError("lip contact: the model has no upper and lower lip surfaces")
+            from facesim.contact.self_contact import lip_contact_term
+
+            self._lips = lip_contact_term(self.model, stiffness=self.options.contact_stiffness)
+        return self._lips
+
+    def posed_colliders(self, controls: Controls, frame: float = 0.0) -> list:
+        """The external colliders posed at ``frame`` with the bones of ``controls``."""
+        if not self.options.colliders:
+            return []
+        Hc, Hj = self.bone_transforms(controls)
+        return [c.at(frame, Hc, Hj) for c in self.options.colliders]
+
+    def skin_term(self, colliders) -> ContactTerm | None:
+        """The skin-against-``colliders`` term (None without colliders)."""
+        if not colliders:
+            return None
+        if self._skin is None:
+            m = self.model
+            nodes = np.unique(m.skin)
+            self._skin = ContactTerm(nodes, [], stiffness=self.options.contact_stiffness,
+                                     weights=node_areas(m.X, m.skin)[nodes])
+        return self._skin.with_colliders(colliders)
+
+    def contact_terms(self, controls: Controls, frame: float = 0.0) -> tuple:
+        """The contact energy terms of the set-up posed for ``controls`` at ``frame`` (teeth with
+        their bones, lips, skin against the external colliders)."""
+        terms = [self.teeth_term(controls)]
+        if self.options.lip_contact:
+            terms.append(self.lip_term())
+        terms.append(self.skin_term(self.posed_colliders(controls, frame)))
+        return tuple(t for t in terms if t is not None)
+
+    def contact_measures(self, x, controls: Controls, frame: float = 0.0) -> dict:
+        """Deepest penetrations at ``x (n, 3)``, mm (0 when none; NaN where the model lacks the
+        surfaces), whether or not the contact is on: ``penetration_mm`` (skin inside an external
+        collider), ``lip_penetration_mm`` (a lip node behind the other lip; the mouth corners,
+        where the lips meet, excluded), ``teeth_penetration_mm`` (a lip node inside the teeth,
+        beyond where it already was at rest)."""
+        out = {"penetration_mm": 0.0, "lip_penetration_mm": float("nan"), "teeth_penetration_mm": float("nan")}
+        if not np.isfinite(x).all():
+            return {k: float("nan") for k in out}
+        skin = self.skin_term(self.posed_colliders(controls, frame))
+        if skin is not None:
+            out["penetration_mm"] = float(skin.penetration(x).max(initial=0.0))
+        if has_lips(self.model):
+            lips = self.lip_term()
+            d = lips.signed_distances(x)[lips.weights > 0]
+            out["lip_penetration_mm"] = float(max(0.0, -d.min(initial=np.inf)))
+        if has_teeth(self.model):
+            # depth beyond each lip node's own rest overlap: the rest mesh's lip envelope can dip
+            # into the teeth surface by a fraction of a mm (the penalty's zero sits below it too)
+            term = self.teeth_term(controls, force=True)
+            if self._teeth_rest is None:
+                self._teeth_rest = np.minimum(0.0, self.teeth_term(Controls(controls.a), force=True)
+                                              .signed_distances(self.model.X))
+            depth = self._teeth_rest - term.signed_distances(x)
+            out["teeth_penetration_mm"] = float(max(0.0, depth.max(initial=0.0)))
+        return out
 
     def with_gain(self, gain) -> "FaceSimulator":
         """A simulator sharing this one's precomputation, with another exaggeration gain."""
@@ -202,27 +327,35 @@ class FaceSimulator:
         prob = self.problem(controls, None, extra_terms)   # its start is the cold start
         return float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]))
 
-    def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None,
-                    extra_terms=()) -> Equilibrium:
-        """Equilibrium positions for ``controls``, warm-started from ``x0 (n, 3)`` if given.
+    def solve_terms(self, controls: Controls, frame: float = 0.0, extra_terms=()) -> tuple:
+        """The energy terms besides flesh and muscles of a solve at ``controls`` and ``frame``: the
+        set-up's contact terms posed there, then ``extra_terms``."""
+        return self.contact_terms(controls, frame) + tuple(extra_terms)
 
-        ``extra_terms``: more energy terms for this solve (e.g. a
-        :class:`~facesim.contact.ContactTerm` against colliders posed for this frame)."""
+    def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None,
+                    extra_terms=(), frame: float = 0.0) -> Equilibrium:
+        """Equilibrium positions for ``controls``, warm-started from ``x0 (n, 3)`` if given, with the
+        set-up's contact posed at ``frame`` (scripted colliders) plus ``extra_terms``.
+
+        A solve that does not converge is returned with ``converged`` False (not raised); a linear
+        solver failing inside it raises :class:`~facesim.errors.SolverError`."""
         controls = self._check(controls)
         t0 = time.perf_counter()
         if x0 is not None:
             x0 = np.asarray(x0, dtype=np.float64)
             if x0.shape != self.model.X.shape:
                 raise FacesimError(f"x0: expected positions of shape {self.model.X.shape}, got {x0.shape}")
+            if not np.isfinite(x0).all():
+                raise SolverError("equilibrium: the warm start has non-finite positions")
         options = newton_options or self.options.newton
-        teeth = self.teeth_term(controls)
-        if teeth is not None:
-            extra_terms = tuple(extra_terms) + (teeth,)
+        extra_terms = self.solve_terms(controls, frame, extra_terms)
         scale = self.force_scale(controls, extra_terms)
         prob = self.problem(controls, self.predict(controls, x0), extra_terms)
         x, rep = newton(prob, options, scale, self.linear)
         if not rep.converged and self.options.substeps > 1:
             x, rep = self._substepped(controls, x0, options, scale, rep, extra_terms)
+        if not np.isfinite(x).all():
+            rep.converged = False
         rep.seconds["total"] = time.perf_counter() - t0
         return Equilibrium(x=x, controls=controls, report=rep)
 
@@ -251,6 +384,16 @@ class FaceSimulator:
         rep.seconds["substeps"] = k
         return x, rep
 
+    def element_quality(self, x) -> tuple[int, float]:
+        """``(inverted, min_J)`` over the simulated tets at ``x (n, 3)``: how many have det F <= 0,
+        and the smallest det F (volume ratio; NaN for non-finite positions)."""
+        from facesim.model import signed_volumes
+
+        if not np.isfinite(x).all():
+            return -1, float("nan")
+        J = signed_volumes(np.asarray(x, dtype=np.float64), self.rest.tets[self.elems]) / self.rest.V0[self.elems]
+        return int((J <= 0).sum()), float(J.min(initial=np.inf))
+
     def internal_force(self, x, a) -> np.ndarray:
         """Total internal force ``-dE/dx (n, 3)`` (N) of flesh and muscles."""
         return -(self.elastic.gradient(x) + self.muscle.gradient(x, a))
@@ -261,9 +404,9 @@ class FaceSimulator:
 
 
 def equilibrium(model: FaceModel, controls: Controls, x0=None, options: EquilibriumOptions | None = None,
-                jaw_model=None) -> Equilibrium:
+                jaw_model=None, frame: float = 0.0) -> Equilibrium:
     """One-shot equilibrium (builds a :class:`FaceSimulator`; keep one for sequences)."""
-    return FaceSimulator(model, options, jaw_model).equilibrium(controls, x0)
+    return FaceSimulator(model, options, jaw_model).equilibrium(controls, x0, frame=frame)
 
 
-__all__ = ["EquilibriumOptions", "Equilibrium", "FaceSimulator", "equilibrium"]
+__all__ = ["EquilibriumOptions", "Equilibrium", "FaceSimulator", "equilibrium", "has_lips", "has_teeth"]

@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from facesim.errors import FacesimError
+from facesim.errors import FacesimError, SolverError
 
 SOLVERS = ("amg", "direct", "pardiso")
 
@@ -124,7 +124,7 @@ class AMGSolver:
         self.stats.iterations.append(it)
         self.stats.solve_seconds += time.perf_counter() - t
         if info != 0:
-            raise FacesimError(f"linear solve: CG did not reach rtol {rtol:g} in {self.maxiter} iterations")
+            raise SolverError(f"linear solve: CG did not reach rtol {rtol:g} in {self.maxiter} iterations")
         return x
 
     def solve_many(self, A, b: np.ndarray, B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
@@ -142,8 +142,11 @@ def factorize(A) -> spla.SuperLU:
     entry (always, for the positive definite tangents of the face: no pivoting cost, and still
     stable for an indefinite tangent). ``.solve(b)`` takes ``(N,)`` or ``(N, k)``."""
     with single_blas_thread():
-        return spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1,
-                         options={"SymmetricMode": True})
+        try:
+            return spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1,
+                             options={"SymmetricMode": True})
+        except RuntimeError as exc:   # "Factor is exactly singular"
+            raise SolverError(f"linear solve: LU factorisation failed ({exc})") from None
 
 
 _MKL = None

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facesim.errors import FacesimError
+from facesim.errors import FacesimError, SolverError
 from facesim.fem.linear import SOLVERS, make_linear_solver
 from facesim.fem.system import DofSystem
 
@@ -173,7 +173,7 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
         n_before = len(linear.stats.iterations)
         try:
             du = linear.solve(A, -g, B, rtol=min(options.linear_rtol, max(rel, 1e-12)))
-        except FacesimError:
+        except SolverError:   # CG on an indefinite true tangent
             if project or options.project is False:
                 raise
             allow_true = False   # the true tangent is not SPD here: project from now on

@@ -55,11 +55,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facesim.controls import Controls
-from facesim.errors import FacesimError
+from facesim.errors import FacesimError, SolverError
 from facesim.fem.linear import single_blas_thread
 from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, equilibrium_jacobian, near_equilibrium
 
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+#: why a fit stopped (``FitReport.stop_reason``): only ``"converged"`` is a converged frame
+STOP_REASONS = ("converged", "step_limit", "line_search_failed", "equilibrium_failed")
 ARMIJO = 1e-4              # sufficient decrease of a backtracking step, times its first-order decrease
 EXTRAPOLATE_ABOVE = 1.03   # a kept full step is extended when the markers' response says it should be longer
 EXTEND_TRIALS = 2          # by at most this many more equilibria
@@ -141,14 +143,21 @@ class FitReport:
     step_lengths: list = field(default_factory=list)
     ratios: list = field(default_factory=list)   # per step: achieved / predicted decrease of the full step
     screened: list = field(default_factory=list)  # markers the first linear step flagged and dropped (``screen``)
-    converged: bool = False
+    stop_reason: str = ""   # one of STOP_REASONS
+    error: str = ""         # the numerical failure behind "equilibrium_failed"
     seconds: float = 0.0
     timing: dict = field(default_factory=lambda: dict.fromkeys(("equilibria", "jacobian", "algebra", "line_search"),
                                                                0.0))
 
+    @property
+    def converged(self) -> bool:
+        """Whether the fit met its stopping rule (``stop_reason == "converged"``)."""
+        return self.stop_reason == "converged"
+
     def to_dict(self) -> dict:
-        return {k: (list(map(float, v)) if isinstance(v, list) else dict(v) if isinstance(v, dict) else v)
-                for k, v in self.__dict__.items()}
+        out = {k: (list(map(float, v)) if isinstance(v, list) else dict(v) if isinstance(v, dict) else v)
+               for k, v in self.__dict__.items()}
+        return {**out, "converged": self.converged}
 
 
 @dataclass
@@ -181,7 +190,7 @@ class _Bounds:
         v = float(ex @ ex)
         g[sa] = 2 * ex
         H[self._diag, self._diag] = 2.0 * (ex != 0)
-        if self.jaw_model is not None and hasattr(self.jaw_model, "penalty"):
+        if self.jaw_model is not None:
             pv, pg, ph = self.jaw_model.penalty(c[sj])
             v += float(pv)
             g[sj] += pg
@@ -193,7 +202,7 @@ class _Bounds:
         sa, sj, _ = self.space.slices()
         a = c[sa]
         worst = float(np.max(np.maximum(-a, a - 1.0), initial=0.0))
-        if self.jaw_model is not None and hasattr(self.jaw_model, "bounds"):
+        if self.jaw_model is not None:
             lo, hi = np.asarray(self.jaw_model.bounds, dtype=np.float64).T
             q = c[sj]
             worst = max(worst, float(np.max(np.maximum(lo - q, q - hi), initial=0.0)))
@@ -256,7 +265,7 @@ def _reusable(J: EquilibriumJacobian | None, space: ControlSpace, c, x) -> bool:
 
 def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
               options: FitOptions | None = None, weights=None, extra_terms=(),
-              jacobian: EquilibriumJacobian | None = None, screen=None) -> Fit:
+              jacobian: EquilibriumJacobian | None = None, screen=None, frame: float = 0.0) -> Fit:
     """Fit one frame: the controls (in ``space``, default all activations and the jaw model's
     parameters) whose equilibrium puts the model's markers on ``targets (r, 3)`` mm (NaN rows
     are missing markers), starting from ``controls`` and its equilibrium ``x0`` (solved if None).
@@ -267,14 +276,22 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     called once with the markers the first step's linear model predicts; the markers it names are
     dropped from the frame and listed in ``report.screened`` (a tracked frame's prediction is
     close to its fit, so an outlier costs no second fit).
-    Returns a :class:`Fit` with the final controls, positions, marker positions, the report and
-    the Jacobian at the result for the next frame."""
+    ``frame``: the frame number scripted colliders of the simulator's contact set-up are posed at.
+    Every equilibrium and Jacobian of the fit includes the simulator's contact terms
+    (:meth:`~facesim.fem.equilibrium.FaceSimulator.contact_terms`) and ``extra_terms``.
+
+    Returns a :class:`Fit` with the final controls, positions, marker positions, the report (with
+    ``stop_reason``, one of :data:`STOP_REASONS`: ``"converged"`` by the stopping rule,
+    ``"step_limit"`` after ``max_steps`` steps, ``"line_search_failed"`` when no step length
+    lowered the objective, ``"equilibrium_failed"`` when the starting controls had no equilibrium
+    -- then the fit is returned at its start with ``x`` the last iterate) and the Jacobian at the
+    result for the next frame."""
     with single_blas_thread():   # vector-sized BLAS work only: threads add contention (fem.linear)
         return _fit_frame(sim, targets, controls, x0, space, options or FitOptions(), weights, extra_terms,
-                          jacobian, screen)
+                          jacobian, screen, frame)
 
 
-def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian, screen) -> Fit:
+def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian, screen, frame) -> Fit:
     t0 = time.perf_counter()
     model = sim.model
     targets = np.asarray(targets, dtype=np.float64)
@@ -284,7 +301,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     if keep.sum() < 3:
         raise FacesimError(f"targets: only {int(keep.sum())} markers present; need at least 3")
     w = np.ones(model.n_markers) if weights is None else np.asarray(weights, dtype=np.float64)
-    space = space or ControlSpace.of(sim, jaw=bool(getattr(sim.jaw_model, "n_params", 0)))
+    space = space or ControlSpace.of(sim)
     bounds = _Bounds(space, sim.jaw_model)
     rep = FitReport()
     clock = rep.timing
@@ -308,7 +325,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     def solve(ctrl, warm, tangent):
         """Equilibrium of ``ctrl`` from ``warm``: chord iterations on ``tangent`` first, else Newton."""
         if tangent is not None and options.chord:
-            xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, tangent, extra_terms)
+            xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, tangent, extra_terms, frame=frame)
             rep.newton_iterations += its
             rep.chord_iterations += its
             rep.linear_solves += solves
@@ -316,7 +333,12 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 rep.equilibria += 1
                 return xc
             warm = xc
-        eq = sim.equilibrium(ctrl, x0=warm, extra_terms=extra_terms)
+        try:
+            eq = sim.equilibrium(ctrl, x0=warm, extra_terms=extra_terms, frame=frame)
+        except SolverError as exc:   # a failed trial: the line search treats it as an infinite objective
+            rep.equilibria += 1
+            rep.error = " ".join(str(exc).split())
+            return None
         rep.equilibria += 1
         rep.newton_iterations += eq.iterations
         rep.linear_solves += len(eq.report.linear_iterations)
@@ -333,7 +355,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     def exact_jacobian(c, x):
         t = time.perf_counter()
         J = equilibrium_jacobian(sim, space.apply(base, c), x, space, extra_terms=extra_terms,
-                                 linear_solver=options.linear_solver, rtol=options.jacobian_rtol)
+                                 linear_solver=options.linear_solver, rtol=options.jacobian_rtol, frame=frame)
         rep.jacobians += 1
         rep.linear_solves += len(J.linear_iterations)
         clock["jacobian"] += time.perf_counter() - t
@@ -356,8 +378,14 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     t = time.perf_counter()
     x = solve(controls, x0, None) if x0 is None or not np.isfinite(x0).all() else np.asarray(x0, dtype=np.float64)
     clock["equilibria"] += time.perf_counter() - t
-    if x is None:
-        raise FacesimError("fit_frame: the starting controls have no converged equilibrium")
+    if x is None:   # no equilibrium to start from: the frame failed, reported as such
+        rep.stop_reason = "equilibrium_failed"
+        rep.error = rep.error or "the starting controls have no converged equilibrium"
+        x = sim.attached_positions(controls, x0 if x0 is not None and np.isfinite(x0).all() else None)
+        P = model.marker_positions(x)
+        rep.marker_rms = float(np.sqrt(np.mean(np.sum((P[keep] - targets[keep]) ** 2, axis=1))))
+        rep.seconds = time.perf_counter() - t0
+        return Fit(controls, x, P, rep, None)
     c = space.vector(controls)
     base = controls
     mu = 0.0
@@ -365,6 +393,13 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     rep.objective.append(F)
     P = model.marker_positions(x)
     J = jacobian if _reusable(jacobian, space, c, x) else None
+
+    def small(dc, F, predicted) -> bool:
+        """The stopping rule: the next step would change the objective (or the controls) too little."""
+        return predicted <= max(options.tolerance * max(F, noise_energy), resolution) or \
+            np.abs(dc).max() < options.step_tolerance
+
+    stop = ""
     while rep.gn_steps < options.max_steps:
         if J is None or J.age > options.jacobian_max_age:
             J = exact_jacobian(c, x)
@@ -379,9 +414,9 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 w3, rows, noise_energy = kept(keep)
                 rep.objective[0] = objective(c, x, 0.0)
                 dc, mu, F, predicted, slope = linear_step(J, c, x)
-        if predicted <= max(options.tolerance * max(F, noise_energy), resolution) or \
-                np.abs(dc).max() < options.step_tolerance:
-            break   # converged: the next step would change the objective (or the controls) too little
+        if small(dc, F, predicted):
+            stop = "converged"
+            break
         # the full step first, its equilibrium warm-started from the first-order prediction
         t = time.perf_counter()
         x1 = solve(space.apply(base, c + dc), J.predict(dc), J.tangent)
@@ -418,6 +453,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         rep.gn_steps += 1
         rep.step_lengths.append(alpha)
         if alpha == 0.0 or x_new is None:
+            stop = "line_search_failed"   # no step length lowered the objective
             break
         t = time.perf_counter()
         step = alpha * dc
@@ -432,10 +468,17 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         c, x, F, P = c + step, x_new, F_new, P_new
         rep.objective.append(F)
         if improvement < options.tolerance or np.abs(step).max() < options.step_tolerance:
+            stop = "converged"
             break
         if mismatch > options.jacobian_drift:
             J = None
-    rep.converged = True
+    if not stop:   # out of steps: converged if the (secant-updated) Jacobian predicts no worthwhile step
+        stop = "step_limit"
+        if J is not None and J.age <= options.jacobian_max_age:
+            dc, _, F_next, predicted, _ = linear_step(J, c, x)
+            if small(dc, F_next, predicted):
+                stop = "converged"
+    rep.stop_reason = stop
     final = space.apply(base, c)
     rk = (P[keep] - targets[keep])
     rep.marker_rms = float(np.sqrt(np.mean(np.sum(rk ** 2, axis=1))))
@@ -509,4 +552,4 @@ def _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache,
     return alpha, cache[alpha][0], cache[alpha][1]
 
 
-__all__ = ["FitOptions", "FitReport", "Fit", "fit_frame", "schedule_penalty"]
+__all__ = ["STOP_REASONS", "FitOptions", "FitReport", "Fit", "fit_frame", "schedule_penalty"]

@@ -98,26 +98,31 @@ class ControlSpace:
         object.__setattr__(self, "muscles", m)
 
     @staticmethod
-    def of(sim, jaw: bool = True, head: bool = False, muscles=None) -> "ControlSpace":
-        n_jaw = int(getattr(sim.jaw_model, "n_params", 0)) if jaw else 0
-        if jaw and n_jaw == 0:
-            raise FacesimError(f"control space: the {getattr(sim.jaw_model, 'name', 'given')} jaw model has no "
-                               "parameters to solve for (use the sliding-condyle jaw or a fitted rig)")
+    def of(sim, jaw: bool | None = None, head: bool = False, muscles=None) -> "ControlSpace":
+        """The control space of the simulator ``sim``: its muscles (or ``muscles``), the jaw model's
+        parameters (``jaw``: default whenever the jaw model has any; the rigid jaw has none) and
+        optionally the head."""
+        n_params = sim.jaw_model.n_params
+        if jaw is None:
+            jaw = n_params > 0
+        if jaw and n_params == 0:
+            raise FacesimError(f"control space: the {sim.jaw_model.name} jaw model has no parameters to solve for "
+                               "(use the sliding-condyle jaw or a fitted rig)")
+        n_jaw = n_params if jaw else 0
         centre = tuple(sim.model.X[sim.model.cranium_nodes].mean(axis=0)) if len(sim.model.cranium_nodes) else \
             (0.0, 0.0, 0.0)
-        from facesim.session import jaw_rest
-
-        rest = jaw_rest(sim.jaw_model) if n_jaw else None
-        return ControlSpace(sim.model.n_muscles, muscles, n_jaw, head, centre,
-                            None if rest is None else tuple(float(v) for v in rest))
+        rest = tuple(float(v) for v in sim.jaw_model.rest) if n_jaw else None
+        return ControlSpace(sim.model.n_muscles, muscles, n_jaw, head, centre, rest)
 
     @property
     def size(self) -> int:
         return len(self.muscles) + self.n_jaw + (6 if self.head else 0)
 
-    def names(self, model: FaceModel) -> list[str]:
+    def names(self, model: FaceModel, jaw_model=None) -> list[str]:
+        """Names of the unknowns: muscles, the jaw model's ``param_names`` (``jaw_<k>`` without a jaw
+        model), head parameters."""
         out = [model.muscles.names[i] for i in self.muscles]
-        out += [f"jaw_{k}" for k in range(self.n_jaw)]
+        out += list(jaw_model.param_names) if jaw_model is not None else [f"jaw_{k}" for k in range(self.n_jaw)]
         return out + (list(HEAD_NAMES) if self.head else [])
 
     def slices(self) -> tuple[slice, slice, slice]:
@@ -225,32 +230,32 @@ def default_jacobian_solver(n_dofs: int) -> str:
 
 
 def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None = None, extra_terms=(),
-                         linear_solver: str | None = None, terms_for=None, rtol: float = 1e-10) -> EquilibriumJacobian:
+                         linear_solver: str | None = None, rtol: float = 1e-10,
+                         frame: float = 0.0) -> EquilibriumJacobian:
     """Implicit Jacobian of the equilibrium ``x (n, 3)`` of ``sim`` (a
     :class:`~facesim.fem.equilibrium.FaceSimulator`) at ``controls``.
 
-    ``extra_terms``: the energy terms the equilibrium was solved with besides flesh and muscles
-    (contact); ``terms_for(controls) -> extra terms`` re-poses them when the bones move (default:
-    the same terms, plus the simulator's teeth contact posed for each control). ``linear_solver``:
+    The energy differentiated is the one the equilibrium was solved with: flesh, muscles, the
+    simulator's contact terms posed for the controls at ``frame`` (re-posed with the bones for the
+    jaw columns: teeth and bone-carried colliders move with them) and ``extra_terms``. Contact
+    terms enter the tangent ``K`` with their stiffness like any other term. ``linear_solver``:
     ``"direct"`` (SuperLU), ``"pardiso"`` or ``"amg"`` (default: :func:`default_jacobian_solver` --
     one factorisation serves all columns and beats ~20 CG iterations per column where it fits).
     ``rtol``: CG tolerance per column."""
     with single_blas_thread():   # BLAS work here is vector-sized: threads only add contention
-        return _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, terms_for, rtol)
+        return _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, rtol, frame)
 
 
-def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, terms_for, rtol):
+def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, rtol, frame):
     t0 = time.perf_counter()
     model = sim.model
-    space = space or ControlSpace.of(sim, jaw=bool(getattr(sim.jaw_model, "n_params", 0)))
+    space = space or ControlSpace.of(sim)
     x = np.ascontiguousarray(x, dtype=np.float64)
     if x.shape != model.X.shape:
         raise FacesimError(f"x: expected positions of shape {model.X.shape}, got {x.shape}")
 
     def extras(c: Controls):
-        base = tuple(terms_for(c)) if terms_for is not None else tuple(extra_terms)
-        teeth = sim.teeth_term(c)
-        return base + ((teeth,) if teeth is not None else ())
+        return sim.solve_terms(c, frame, extra_terms)
 
     terms = sim.terms + extras(controls)
     system = sim.system
@@ -316,7 +321,7 @@ CHORD_LOOKAHEAD = 3   # chord iterations worth one Newton step (assembly + a few
 
 
 def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_iterations: int = 8,
-                     contraction: float = 0.5, chord_rate: float = 0.5):
+                     contraction: float = 0.5, chord_rate: float = 0.5, frame: float = 0.0):
     """Equilibrium of ``controls`` from ``x0 (n, 3)`` (e.g. :meth:`EquilibriumJacobian.predict`)
     with the factorised tangent ``tangent`` of a nearby equilibrium (``EquilibriumJacobian.tangent``)
     in place of an AMG hierarchy or a fresh factorisation.
@@ -334,8 +339,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     converged)``; ``x`` is the iterate of least residual, a warm start for Newton if not converged."""
     import scipy.sparse.linalg as spla
 
-    teeth = sim.teeth_term(controls)
-    extras = tuple(extra_terms) + ((teeth,) if teeth is not None else ())
+    extras = sim.solve_terms(controls, frame, extra_terms)   # the same energy as FaceSimulator.equilibrium
     system = sim.system
     solves = 0
     with single_blas_thread():

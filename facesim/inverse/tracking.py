@@ -61,15 +61,16 @@ import numpy as np
 
 from facesim._files import atomic_write
 from facesim.controls import Controls
-from facesim.errors import FacesimError
+from facesim.errors import FacesimError, SolverError
 from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
-from facesim.inverse.gauss_newton import Fit, FitOptions, fit_frame
+from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
 from facesim.inverse.jacobian import ControlSpace
 from facesim.se3 import rigid_fit
 
 LOSSES = ("l2", "huber", "cauchy")
-LOG_COLUMNS = ("frame", "gn_steps", "equilibria", "newton_iterations", "linear_solves", "marker_rms",
-               "worst_violation", "markers_used", "outliers", "fits", "seconds")
+LOG_COLUMNS = ("frame", "converged", "stop_reason", "gn_steps", "equilibria", "newton_iterations", "linear_solves",
+               "marker_rms", "worst_violation", "markers_used", "outliers", "fits", "penetration_mm",
+               "lip_penetration_mm", "teeth_penetration_mm", "seconds", "error")
 LOGS = ("activations", "jaw", "residuals", "frames")
 CHUNKS = "chunks"
 
@@ -121,8 +122,8 @@ class TrackOptions:
 class SimulatorSpec:
     """What a worker process needs to build the simulator of a run: the model file (absolute path
     as the workers see it, and the SHA-256 of its bytes, checked there so every worker solves the
-    client's model), the equilibrium options and the jaw model name
-    (:func:`facesim.session.make_jaw_model`). Small and picklable."""
+    client's model), the equilibrium options (with the contact set-up) and the jaw model name
+    (:func:`facesim.kinematics.jaw_models.make_jaw_model`). Small and picklable."""
 
     model: str
     sha256: str
@@ -154,8 +155,8 @@ def _sha256(path: Path) -> str:
 
 @functools.lru_cache(maxsize=2)
 def _simulator(spec: SimulatorSpec) -> FaceSimulator:
+    from facesim.kinematics.jaw_models import make_jaw_model
     from facesim.model import load_model
-    from facesim.session import make_jaw_model
 
     path = Path(spec.model)
     if not path.is_file():
@@ -282,13 +283,14 @@ def loss_weights(r, loss: str, scale: float) -> np.ndarray:
 
 
 def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
-                options: TrackOptions | None = None, jacobian=None) -> tuple[Fit, list[int], list[Fit]]:
+                options: TrackOptions | None = None, jacobian=None, frame: float = 0.0) -> tuple[Fit, list[int], list[Fit]]:
     """One frame as the tracker fits it: ``targets (r, 3)`` mm (NaN missing) under ``options.loss``
     (reweighted passes of :func:`fit_frame` from ``controls`` / ``x0``), the outlier test and, with
     ``options.robust``, the refit without the outliers. Returns the final fit, the outliers'
     marker indices and every fit made (for the frame's solver counts). ``jacobian``: the previous
     frame's ``Fit.jacobian`` (reused by :func:`fit_frame` while it stays accurate; each pass hands
-    its own on to the next)."""
+    its own on to the next). ``frame``: the frame number the simulator's scripted colliders are
+    posed at."""
     options = options or TrackOptions()
     fits: list[Fit] = []
     targets = np.asarray(targets, dtype=np.float64)
@@ -298,7 +300,7 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
         if options.robust and jacobian is not None else None
 
     def solve(target, c, x, J, screen=None):
-        fit = fit_frame(sim, target, c, x, space, options.fit, jacobian=J, screen=screen)
+        fit = fit_frame(sim, target, c, x, space, options.fit, jacobian=J, screen=screen, frame=frame)
         fits.append(fit)
         w = np.ones(len(target))
         for _ in range(options.irls_steps if options.loss != "l2" else 0):
@@ -306,11 +308,16 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
             if np.max(np.abs(w_new - w) / w_new) < 0.02:   # the weights settled: so has the reweighted fit
                 break
             w = w_new
-            fit = fit_frame(sim, target, fit.controls, fit.x, space, options.fit, weights=w, jacobian=fit.jacobian)
+            if fit.report.stop_reason == "equilibrium_failed":
+                break
+            fit = fit_frame(sim, target, fit.controls, fit.x, space, options.fit, weights=w, jacobian=fit.jacobian,
+                            frame=frame)
             fits.append(fit)
         return fit
 
     fit = solve(targets, controls, x0, jacobian, screen)
+    if fit.report.stop_reason == "equilibrium_failed":
+        return fit, [], fits
     outliers = _outliers(fit.markers, targets, options)
     if outliers != fit.report.screened and options.robust:   # the screen missed some, or was wrong
         cleaned = targets.copy()
@@ -328,29 +335,53 @@ class _Solved:
     gn_steps: int
     rms: float
     outliers: tuple[str, ...]
+    stop_reason: str = "converged"
+
+    @property
+    def converged(self) -> bool:
+        return self.stop_reason == "converged"
 
 
 def _solve_frame(sim, space, options, target, k: int, i: int, controls, x, jacobian=None):
     """Fit frame ``k`` (position ``i``); returns the :class:`_Solved` and the state for the next
-    frame (controls, equilibrium, Jacobian)."""
+    frame (controls, equilibrium, Jacobian). A frame whose equilibrium failed (or whose solve
+    raised a :class:`SolverError`) is written flagged, and the next frame starts from the state
+    this one started from, never from the failed one."""
     model = sim.model
-    fit, outliers, fits = fit_markers(sim, target, controls, x, space, options, jacobian)
-    r = np.linalg.norm(fit.markers - target, axis=1)
+    try:
+        fit, outliers, fits = fit_markers(sim, target, controls, x, space, options, jacobian, frame=k)
+    except SolverError as exc:
+        start = sim.attached_positions(controls, x)
+        P = model.marker_positions(start)
+        rep = FitReport(stop_reason="equilibrium_failed", error=" ".join(str(exc).split()))
+        fit, outliers, fits = Fit(controls, start, P, rep, None), [], []
     rep = fit.report
+    r = np.linalg.norm(fit.markers - target, axis=1)
+    if not np.isfinite(rep.marker_rms):
+        ok = np.isfinite(r)
+        rep.marker_rms = float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else float("nan")
     total = {name: sum(getattr(f.report, name) for f in fits)
              for name in ("gn_steps", "equilibria", "newton_iterations", "linear_solves", "seconds")}
     used = int(np.isfinite(target).all(axis=1).sum()) - (len(outliers) if options.robust else 0)
     jaw = np.atleast_1d(fit.controls.jaw) if space.n_jaw else []
+    measures = sim.contact_measures(fit.x, fit.controls, k)
     lines = (
         _line([k, *map(_fmt, fit.controls.a)]),
         _line([k, *map(_fmt, jaw)]),
         _line([k, _fmt(rep.marker_rms), *map(_fmt, r)]),
-        _line([k, total["gn_steps"], total["equilibria"], total["newton_iterations"], total["linear_solves"],
-               _fmt(rep.marker_rms), _fmt(rep.worst_violation), used, len(outliers), len(fits),
-               f"{total['seconds']:.3f}"]),
+        _line([k, int(rep.converged), rep.stop_reason, total["gn_steps"], total["equilibria"],
+               total["newton_iterations"], total["linear_solves"], _fmt(rep.marker_rms), _fmt(rep.worst_violation),
+               used, len(outliers), len(fits), *(_fmt(measures[c]) for c in _MEASURES), f"{total['seconds']:.3f}",
+               rep.error]),
     )
-    solved = _Solved(i, lines, total["gn_steps"], rep.marker_rms, tuple(model.markers.names[j] for j in outliers))
+    solved = _Solved(i, lines, total["gn_steps"], rep.marker_rms, tuple(model.markers.names[j] for j in outliers),
+                     rep.stop_reason)
+    if rep.stop_reason == "equilibrium_failed":
+        return solved, controls, x, jacobian
     return solved, fit.controls, fit.x, fit.jacobian
+
+
+_MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
 
 
 def with_markers(sim, markers):
@@ -602,10 +633,8 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         model = local.model
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    space = ControlSpace.of(local, jaw=bool(getattr(local.jaw_model, "n_params", 0)))
-    jaw_names = list(getattr(local.jaw_model, "param_names", [f"q{k}" for k in range(space.n_jaw)]))
-    if getattr(local.jaw_model, "name", "") == "sliding-condyle":
-        jaw_names = ["opening", "right_slide", "left_slide"]
+    space = ControlSpace.of(local)
+    jaw_names = list(local.jaw_model.param_names)
     headers = {"activations": ["frame", *model.muscles.names], "jaw": ["frame", *jaw_names],
                "residuals": ["frame", "rms", *model.markers.names], "frames": list(LOG_COLUMNS)}
     n = len(frames)
@@ -656,9 +685,26 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
             "seconds": round(time.perf_counter() - t_start, 3),
             "gn_steps": [solved[i].gn_steps for i in order], "marker_rms": [round(solved[i].rms, 4) for i in order],
             "outliers": dict(sorted(summary["outliers"].items(), key=lambda kv: position.get(int(kv[0]), 0))),
+            **_stop_summary(outputs, frames),
         })
         atomic_write(out / "report.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
     return summary
+
+
+def _stop_summary(outputs, frames) -> dict:
+    """``stop_reasons`` (count per reason) and ``unconverged_frames`` over every written frame
+    (solved now or reused), from their ``frames.csv`` lines."""
+    column = LOG_COLUMNS.index("stop_reason")
+    counts: dict[str, int] = {}
+    unconverged = {}
+    for k in map(int, frames):
+        if k in outputs.done:
+            reason = next(csv.reader([outputs.done[k][3]]))[column]
+            counts[reason] = counts.get(reason, 0) + 1
+            if reason != "converged":
+                unconverged[str(k)] = reason
+    return {"stop_reasons": counts, "converged": counts.get("converged", 0),
+            "unconverged_frames": [int(k) for k in unconverged], "unconverged_reasons": unconverged}
 
 
 def _rest_jaw(space: ControlSpace):

@@ -75,14 +75,15 @@ class SlidingCondyleJaw:
     points : (k, 3) mm, optional jaw points whose distance ``project`` minimises (default: the two
         condyles and the incisor, which fix a rigid pose).
 
-    Jaw-model interface: ``q = p = (opening rad, right slide mm, left slide mm)``;
-    ``transform(q) -> 4x4``, ``jacobian(q) -> (4, 4, 3)``, ``penalty(q) -> (value, (3,), (3, 3))``,
-    ``bounds (3, 2)``, ``n_params = 3``, ``name``. Frame level (12 affine coefficients):
+    Jaw-model interface (:class:`~facesim.kinematics.jaw_models.JawModel`): ``q = p = (opening rad,
+    right slide mm, left slide mm)`` (``param_names``); ``transform(q) -> 4x4``, ``jacobian(q) -> (4, 4,
+    3)``, ``penalty(q) -> (value, (3,), (3, 3))``, ``bounds (3, 2)``, ``rest``, ``parameters(T)``. Frame level (12 affine coefficients):
     ``psi``, ``psi_jacobian``, ``phi_kin``; conversions ``parameters`` and ``project``.
     """
 
     name = "sliding-condyle"
     n_params = 3
+    param_names = ("opening", "right_slide", "left_slide")   # the order of q, and of jaw CSV columns
 
     def __init__(self, geometry: JawGeometry, penalty_weight: float = 1.0, points=None):
         if not isinstance(geometry, JawGeometry):
@@ -101,6 +102,8 @@ class SlidingCondyleJaw:
             points = np.stack([geometry.condyle_right, geometry.condyle_left, geometry.incisor])
         self.points = np.array(points, dtype=np.float64).reshape(-1, 3)
         self.points.setflags(write=False)
+        self.rest = np.zeros(3)   # closed, condyles at the back of their tracks: the identity
+        self.rest.setflags(write=False)
 
         # psi = A q + b, A (6, 12): the constraints are linear in the frame coefficients
         u, v, w, m, l = self.u, self.v, self.w, self.m, self.l

@@ -183,11 +183,10 @@ def muscle_sensitivity(sim) -> np.ndarray:
     :func:`~facesim.inverse.jacobian.equilibrium_jacobian`). ``sim``: a FaceSimulator."""
     from facesim.controls import Controls
     from facesim.inverse.jacobian import ControlSpace, equilibrium_jacobian
-    from facesim.session import jaw_rest
 
     model = sim.model
     space = ControlSpace.of(sim, jaw=False)
-    rest = Controls(np.zeros(model.n_muscles), jaw=jaw_rest(sim.jaw_model))
+    rest = Controls(np.zeros(model.n_muscles), jaw=sim.jaw_model.rest)
     J = equilibrium_jacobian(sim, rest, model.X, space).dP.reshape(model.n_markers, 3, -1)
     return np.linalg.norm(J, axis=1)[~model.markers.head].max(axis=0)
 

@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facesim.controls import Controls, RigidJaw, rotation_about
+from facesim.controls import Controls, rotation_about
+from facesim.kinematics.jaw_models import RigidJaw
 from facesim.errors import FacesimError
 from facesim.fem.equilibrium import FaceSimulator
 from facesim.model import load_model

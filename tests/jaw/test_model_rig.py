@@ -6,7 +6,7 @@ import pytest
 
 from facesim import se3
 from facesim._files import MESHES
-from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
+from facesim.jaw.evaluate import pose_errors
 from facesim.jaw.model_rig import (
     TEST_SEED,
     find_model_rig,
@@ -15,9 +15,10 @@ from facesim.jaw.model_rig import (
     model_rig_path,
 )
 from facesim.jaw.motion import JawMotion, Subject, subject_for
+from facesim.jaw.points import front_weights, mandible_points
 from facesim.jaw.posselt import PosseltRig
 from facesim.model import FaceModel
-from facesim.session import make_jaw_model
+from facesim.kinematics.jaw_models import make_jaw_model
 from tests.jaw.test_jaw_cli import run
 
 SHIPPED_RIG = MESHES / "face_coarse_posselt.npz"

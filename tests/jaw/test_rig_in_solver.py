@@ -16,7 +16,8 @@ from facesim import se3
 from facesim.jaw.model_rig import fit_model_rig, model_rig_path
 from facesim.kinematics.rig_jaw import RigJaw
 from facesim.mocap.io import write_markers_csv
-from facesim.session import Simulation, make_jaw_model
+from facesim.session import Simulation
+from facesim.kinematics.jaw_models import make_jaw_model
 
 TRUTH = np.array([            # sliders (s_x right -> left, s_y closed -> open, s_z retruded -> protruded)
     [0.5, 0.15, 0.3],         # inside

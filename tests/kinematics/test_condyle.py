@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facesim.controls import RigidJaw
+from facesim.kinematics.jaw_models import RigidJaw
 from facesim.errors import FacesimError
 from facesim.kinematics.condyle import KinematicTerm, SlidingCondyleJaw
 from facesim.kinematics.frames import matrix_to_frame
