@@ -29,16 +29,11 @@ import time
 import numpy as np
 
 from facesim import se3
-from facesim.jaw.evaluate import (
-    RIGS,
-    compare_rigs,
-    front_weights,
-    mandible_points,
-    pose_errors,
-)
+from facesim.jaw.evaluate import RIGS, compare_rigs, pose_errors
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion, Subject, subject_for
 from facesim.jaw.nlpca import compare_reconstruction
+from facesim.jaw.points import front_weights, mandible_points
 from facesim.jaw.posselt import fit_posselt
 from facesim.jaw.retarget import retarget_posselt
 

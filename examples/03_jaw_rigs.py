@@ -34,16 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from facesim import load_model, se3
-from facesim.jaw.evaluate import (
-    compare_rigs,
-    front_weights,
-    mandible_points,
-    pose_errors,
-)
+from facesim.jaw.evaluate import compare_rigs, pose_errors
 from facesim.jaw.figures import envelope_figure
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion, Subject, subject_for
 from facesim.jaw.nlpca import compare_reconstruction
+from facesim.jaw.points import front_weights, mandible_points
 from facesim.jaw.posselt import Shield, fit_posselt
 from facesim.jaw.retarget import EXTREMES, retarget_posselt
 

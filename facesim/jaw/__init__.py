@@ -8,26 +8,29 @@
 - ``model_rig`` -- a face model's own Posselt rig, fitted to motion generated for its TMJ.
 - ``retarget`` -- a Posselt rig bent onto a new subject from a few extremal poses (Zoss section 5).
 - ``nlpca`` -- se(3) chart, linear PCA, hierarchical nonlinear PCA and the 3-parameter rig (Yang et al. 2018).
-- ``evaluate`` -- mandible points, front-weighted errors, train/test comparison of rigs.
-- ``rigfile`` -- fitted rigs on disk (versioned .npz).
+- ``points`` -- mandible points, front weights, farthest-point samples.
+- ``evaluate`` -- front-weighted errors, train/test comparison of rigs.
+- ``rigfile`` -- fitted rigs on disk (versioned .npz); ``rigs`` -- the rig classes by kind, ``load_rig``.
 - ``figures`` -- pictures of a rig's envelope.
 
-Names are imported on first use (PEP 562), so ``facesim --help``, which registers the ``jaw``
-commands of :mod:`facesim.jaw.cli`, does not pay for scipy and the rigs.
+SE(3) maps and rigid fits are in :mod:`facesim.se3`. Names are imported on first use (PEP 562),
+so ``facesim --help``, which registers the ``jaw`` commands of :mod:`facesim.jaw.cli`, does not
+pay for scipy and the rigs.
 """
 
 import importlib
 
 _EXPORTS = {
     "DOF": "classic", "ClassicRig": "classic", "fit_classic": "classic",
-    "compare_rigs": "evaluate", "front_weights": "evaluate", "mandible_points": "evaluate",
-    "pose_errors": "evaluate",
+    "compare_rigs": "evaluate", "pose_errors": "evaluate",
     "JawFrame": "frame",
     "JawMotion": "motion", "Session": "motion", "Subject": "motion", "subject_for": "motion",
     "find_model_rig": "model_rig", "fit_model_rig": "model_rig",
     "NlpcaRig": "nlpca", "Se3Chart": "nlpca", "fit_nlpca": "nlpca", "fit_pca": "nlpca",
+    "front_weights": "points", "mandible_points": "points",
     "PosseltRig": "posselt", "Shield": "posselt", "detect_border": "posselt", "fit_posselt": "posselt",
     "retarget_posselt": "retarget",
+    "KINDS": "rigs", "load_rig": "rigs",
 }
 
 
@@ -39,21 +42,9 @@ def __getattr__(name):
     raise AttributeError(f"module 'facesim.jaw' has no attribute {name!r}")
 
 
-def load_rig(path):
-    """A fitted rig (:class:`PosseltRig`, :class:`NlpcaRig` or :class:`ClassicRig`) from its ``.npz``,
-    by its kind."""
-    from facesim.jaw.classic import ClassicRig
-    from facesim.jaw.nlpca import NlpcaRig
-    from facesim.jaw.posselt import PosseltRig
-    from facesim.jaw.rigfile import rig_kind
-
-    kind = rig_kind(path)
-    return {"posselt": PosseltRig.load, "nlpca": NlpcaRig.load, "classic": ClassicRig.load}.get(
-        kind, PosseltRig.load)(path)
-
-
 __all__ = [
     "DOF",
+    "KINDS",
     "ClassicRig",
     "JawFrame",
     "JawMotion",

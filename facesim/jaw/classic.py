@@ -32,7 +32,9 @@ from scipy.spatial.transform import Rotation
 
 from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
+from facesim.jaw._lm import levenberg_marquardt
 from facesim.jaw.frame import JawFrame
+from facesim.jaw.points import second_moment_factor
 from facesim.jaw.rigfile import load_rig, save_rig
 
 PARAMETERS = ("pitch", "yaw", "roll", "tx", "ty", "tz")
@@ -43,19 +45,6 @@ DOF = {
     "6dof": ("pitch", "yaw", "roll", "tx", "ty", "tz"),
 }
 _AXIS = {"pitch": 0, "yaw": 1, "roll": 2}
-
-
-def _second_moment_factor(points, weights) -> np.ndarray:
-    """``L (4, 4)`` with L Lᵀ = Σ w x̃ x̃ᵀ / Σ w for ``points (k, 3)`` (jaw frame, mm)."""
-    X = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    w = np.ones(len(X)) if weights is None else np.asarray(weights, dtype=np.float64)
-    if len(X) < 3 or w.shape != (len(X),) or not (w >= 0).all() or not w.sum() > 0:
-        raise FacesimError(f"points/weights: expected >= 3 points (k, 3) and k non-negative weights "
-                           f"with a positive sum, got {X.shape} and {w.shape}")
-    Xh = np.c_[X, np.ones(len(X))]
-    S = (Xh * (w / w.sum())[:, None]).T @ Xh
-    lam, V = np.linalg.eigh(S)           # S is PSD; eigh keeps it exact even for flat point sets
-    return V * np.sqrt(np.maximum(lam, 0.0))
 
 
 def _elementary(angle, axis: int):
@@ -154,7 +143,7 @@ class ClassicRig:
         frame) in the weighted mean squared distance of ``points (P, 3)`` mm (skull frame, the
         mandible at rest) with ``weights (P,)`` (Zoss eq. 6)."""
         poses = _poses(poses)
-        L = _second_moment_factor(self.frame.to_local(points), weights)
+        L = second_moment_factor(self.frame.to_local(points), weights)
         return _fit_frames(self, self.frame.pose_to_local(poses), L, self.origin, q0)[0]
 
     def reproduce(self, poses, points, weights=None) -> np.ndarray:
@@ -207,33 +196,10 @@ def _fit_frames(rig: ClassicRig, local, L, origin, q0=None, iterations: int = 60
     """Batched Levenberg-Marquardt of eq. 6 for every frame: (q (N, k), r (N, 12), J (N, 12, k), T).
     Frames whose step has fallen below 1e-10 (rad or mm), or whose cost no longer falls above
     round-off, drop out of the iteration."""
-    q = _initial(rig, local, origin) if q0 is None else np.array(q0, dtype=np.float64)
-    r, J, T = _residuals(rig, q, local, L, origin)
-    cost = np.einsum("ij,ij->i", r, r)
-    mu = np.full(len(q), 1e-6)          # the initial guesses are close: start near Gauss-Newton
-    eye = np.eye(rig.n_params)
-    active = np.arange(len(q))
-    for _ in range(iterations):
-        Ja, ra = J[active], r[active]
-        g = np.einsum("nij,ni->nj", Ja, ra)
-        H = np.einsum("nij,nil->njl", Ja, Ja)
-        damp = mu[active, None, None] * (eye * (np.diagonal(H, axis1=1, axis2=2)[:, None, :] + 1e-9))
-        step = -np.linalg.solve(H + damp, g[..., None])[..., 0]
-        q_new = q[active] + step
-        r_new, J_new, T_new = _residuals(rig, q_new, local[active], L, origin)
-        cost_new = np.einsum("ij,ij->i", r_new, r_new)
-        better = cost_new <= cost[active]
-        idx = active[better]
-        q[idx], r[idx], J[idx], T[idx], cost[idx] = q_new[better], r_new[better], J_new[better], T_new[better], \
-            cost_new[better]
-        mu[active] = np.where(better, np.maximum(mu[active] / 3, 1e-12), mu[active] * 4)
-        # converged: a negligible step, or no decrease left above round-off
-        stalled = ~better & (cost_new - cost[active] <= 1e-13 * (cost[active] + 1e-12))
-        done = (np.abs(step).max(axis=1) < 1e-10) | stalled | (mu[active] > 1e8)
-        active = active[~done]
-        if len(active) == 0:
-            break
-    return q, r, J, T
+    q = _initial(rig, local, origin) if q0 is None else q0
+    # the initial guesses are close: start near Gauss-Newton
+    return levenberg_marquardt(lambda q, rows: _residuals(rig, q, local[rows], L, origin), q, iterations,
+                               mu=1e-6, floor=1e-9, accept_ties=True, stall=1e-13)
 
 
 @dataclass(frozen=True)
@@ -281,7 +247,7 @@ def fit_classic(poses, dof: str, frame: JawFrame, points, weights=None, origin0=
     if not regularization >= 0 or not scale > 0:
         raise FacesimError("classic rig: expected regularization >= 0 and scale > 0 mm")
     local = frame.pose_to_local(poses)
-    L = _second_moment_factor(frame.to_local(points), weights)
+    L = second_moment_factor(frame.to_local(points), weights)
     o0 = pivot_estimate(local) if origin0 is None else np.asarray(origin0, dtype=np.float64)
     rig = ClassicRig(dof, frame, o0)
     n = len(poses)

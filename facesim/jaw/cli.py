@@ -47,7 +47,7 @@ class PosesFile:
     def points(self, frame):
         """Mandible points ``(P, 3)`` and weights ``(P,)``: the file's, or the shipped model's mandible
         with front weights in ``frame``."""
-        from facesim.jaw.evaluate import front_weights, mandible_points
+        from facesim.jaw.points import front_weights, mandible_points
 
         if self.mandible is not None:
             w = self.weights if self.weights is not None else front_weights(self.mandible, frame)
@@ -130,7 +130,7 @@ def read_poses(path) -> PosesFile:
 
 
 def _load_rig(path):
-    from facesim.jaw import load_rig
+    from facesim.jaw.rigs import load_rig
 
     return load_rig(path)
 
@@ -153,7 +153,7 @@ def _errors(rig, pf: PosesFile):
 
 
 def _kind(rig) -> str:
-    from facesim.kinematics.rig_jaw import KINDS
+    from facesim.jaw.rigs import KINDS
 
     return KINDS[type(rig)] if KINDS[type(rig)] != "classic" else rig.dof
 
@@ -317,7 +317,7 @@ def cmd_jaw_generate(args) -> int:
 
 
 def cmd_jaw_fit_model(args) -> int:
-    from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
+    from facesim.jaw.evaluate import pose_errors
     from facesim.jaw.model_rig import (
         TEST_SEED,
         fit_model_rig,
@@ -325,6 +325,7 @@ def cmd_jaw_fit_model(args) -> int:
         model_rig_path,
     )
     from facesim.jaw.motion import subject_for
+    from facesim.jaw.points import front_weights, mandible_points
     from facesim.model import FaceModel
 
     model = FaceModel.load(args.model)

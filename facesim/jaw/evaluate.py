@@ -1,10 +1,8 @@
-"""Judging jaw rigs: mandible points, the front-weighted error map, and train/test comparisons.
+"""Judging jaw rigs: per-frame errors and train/test comparisons.
 
 The error of a rig on a pose is the weighted mean distance (mm) between the mandible points
-placed by the captured pose and by the rig's pose (:func:`facesim.se3.vertex_errors`).
-Following Zoss et al. 2018 Fig. 8 the weights favour the front of the mandible (chin and
-incisors), where errors are visible: ``front_weights`` ramps them quadratically from ``floor``
-at the back of the mandible to 1 at its front along the jaw frame's forward axis.
+placed by the captured pose and by the rig's pose (:func:`facesim.se3.vertex_errors`), on the
+points and front weights of :mod:`facesim.jaw.points` (Zoss et al. 2018 Fig. 8).
 
 ``compare_rigs`` fits every rig on one session and measures it on another session of the same
 subject: mean, 95th percentile and maximum of the per-frame error.
@@ -12,8 +10,6 @@ subject: mean, 95th percentile and maximum of the per-frame error.
 
 from __future__ import annotations
 
-import functools
-import itertools
 import time
 from dataclasses import dataclass
 
@@ -21,79 +17,10 @@ import numpy as np
 
 from facesim import se3
 from facesim.errors import FacesimError
+from facesim.jaw.classic import DOF, fit_classic
 from facesim.jaw.frame import JawFrame
-
-
-def farthest_points(X, count: int) -> np.ndarray:
-    """Indices ``(min(count, n),)`` of a farthest-point sample of ``X (n, 3)``, starting nearest
-    the centroid (deterministic)."""
-    X = np.asarray(X, dtype=np.float64).reshape(-1, 3)
-    count = min(int(count), len(X))
-    if count <= 0:
-        return np.zeros(0, dtype=int)
-    chosen = np.empty(count, dtype=int)
-    chosen[0] = int(np.argmin(np.linalg.norm(X - X.mean(axis=0), axis=1)))
-    d = np.linalg.norm(X - X[chosen[0]], axis=1)
-    for i in range(1, count):
-        chosen[i] = int(np.argmax(d))
-        d = np.minimum(d, np.linalg.norm(X - X[chosen[i]], axis=1))
-    return chosen
-
-
-def mandible_points(model=None, count: int = 400) -> np.ndarray:
-    """``(count, 3)`` mm: an even sample of the mandible surface (the bone attached to the jaw)
-    of ``model`` (default the shipped model, whose samples are computed once per count), skull
-    frame at rest."""
-    if model is None:
-        return _shipped_mandible(int(count)).copy()
-    return _mandible_sample(model, count)
-
-
-@functools.lru_cache(maxsize=4)
-def _shipped_mandible(count: int) -> np.ndarray:
-    from facesim.jaw._shipped import shipped_model
-
-    return _mandible_sample(shipped_model(), count)
-
-
-def _mandible_sample(model, count: int) -> np.ndarray:
-    surfaces = [s for s in model.bones if s.bone == "jaw"]
-    if not surfaces:
-        raise FacesimError("model.bones: no surface attached to the jaw (expected the mandible)")
-    V = np.concatenate([np.asarray(s.vertices, dtype=np.float64) for s in surfaces])
-    return V[farthest_points(V, count)]
-
-
-def synthetic_mandible(geometry, count: int = 400, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """``(count, 3)`` mm: a U-shaped stand-in mandible for a :class:`~facesim.model.JawGeometry`
-    without a model: condyles down the rami to the gonial angles, then the body forward to the
-    incisor (a tube of 6 mm radius around that polyline)."""
-    frame = JawFrame.from_geometry(geometry, up)
-    c_r, c_l = frame.to_local(geometry.condyle_right), frame.to_local(geometry.condyle_left)
-    drop = c_r[1] + 20.0                             # condyle down to the gonion, ~20 mm below the incisor
-    g_r = c_r + np.array([3.0, -drop, -5.0])
-    g_l = c_l + np.array([-3.0, -drop, -5.0])
-    chin = np.array([0.0, -35.0, -8.0])
-    poly = [c_r, g_r, chin, np.zeros(3), chin, g_l, c_l]
-    seg = np.array([np.linalg.norm(b - a) for a, b in itertools.pairwise(poly)])
-    s = np.linspace(0.0, seg.sum(), 4 * count)
-    k = np.minimum(np.searchsorted(np.cumsum(seg), s, side="right"), len(seg) - 1)
-    start = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
-    a, b = np.array(poly[:-1])[k], np.array(poly[1:])[k]
-    centre = a + ((s - start[k]) / seg[k])[:, None] * (b - a)
-    rng = np.random.default_rng(0)
-    offsets = rng.normal(size=centre.shape)
-    offsets *= 6.0 / np.linalg.norm(offsets, axis=1, keepdims=True)
-    P = centre + offsets
-    return frame.to_world(P[farthest_points(P, count)])
-
-
-def front_weights(points, frame: JawFrame, floor: float = 0.1) -> np.ndarray:
-    """``(P,)`` weights in [floor, 1] of ``points (P, 3)`` mm (skull frame): ``floor`` at the
-    back of the point set, 1 at its front, quadratic in between along the frame's z axis."""
-    z = frame.to_local(points)[:, 2]
-    t = (z - z.min()) / max(z.max() - z.min(), 1e-12)
-    return floor + (1.0 - floor) * t * t
+from facesim.jaw.nlpca import fit_nlpca
+from facesim.jaw.posselt import fit_posselt
 
 
 @dataclass(frozen=True)
@@ -147,10 +74,6 @@ def compare_rigs(train, test, points, weights=None, rigs=RIGS, frame: JawFrame |
     by its inverse kinematics (best parameters on ``points``). ``posselt_options`` and
     ``nlpca_options`` go to ``fit_posselt`` and ``fit_nlpca``.
     """
-    from facesim.jaw.classic import DOF, fit_classic
-    from facesim.jaw.nlpca import fit_nlpca
-    from facesim.jaw.posselt import fit_posselt
-
     if frame is None:
         frame = JawFrame.from_poses(train.poses, train.reference_point)
     reports = {}
@@ -187,10 +110,6 @@ __all__ = [
     "ErrorStats",
     "RigReport",
     "compare_rigs",
-    "farthest_points",
     "format_table",
-    "front_weights",
-    "mandible_points",
     "pose_errors",
-    "synthetic_mandible",
 ]

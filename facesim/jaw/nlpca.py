@@ -64,8 +64,9 @@ from scipy.spatial import Delaunay, QhullError
 
 from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw.classic import _second_moment_factor
+from facesim.jaw._lm import levenberg_marquardt
 from facesim.jaw.frame import JawFrame
+from facesim.jaw.points import farthest_points, front_weights, mandible_points, second_moment_factor
 from facesim.jaw.rigfile import load_rig, save_rig
 
 MOTIONS = ("opening", "lateral", "protrusion")   # what the parameters can stand for
@@ -286,16 +287,6 @@ def _hierarchical_loss(theta, like: dict, U, c, decay: float):
     return f, _pack(g)
 
 
-def _farthest_rows(Y, count: int) -> np.ndarray:
-    """Indices of a farthest-point sample of the rows of ``Y (N, d)`` (deterministic)."""
-    chosen = [int(np.argmin(np.linalg.norm(Y - Y.mean(axis=0), axis=1)))]
-    d = np.linalg.norm(Y - Y[chosen[0]], axis=1)
-    for _ in range(count - 1):
-        chosen.append(int(np.argmax(d)))
-        d = np.minimum(d, np.linalg.norm(Y - Y[chosen[-1]], axis=1))
-    return np.sort(np.array(chosen))
-
-
 def fit_hnlpca(poses, chart: Se3Chart, components: int = 3, hidden: int = 12, iterations: int = 1000,
                decay: float = 1e-6, seed: int = 0, max_samples: int = 3000) -> Autoencoder:
     """Train the hierarchical autoencoder on ``poses (N, 4, 4)`` (skull frame) in ``chart``.
@@ -308,7 +299,7 @@ def fit_hnlpca(poses, chart: Se3Chart, components: int = 3, hidden: int = 12, it
     if not 1 <= int(components) <= 5 or int(hidden) < 1 or int(iterations) < 1 or not decay >= 0:
         raise FacesimError("nlpca: expected 1 to 5 components, hidden >= 1, iterations >= 1 and decay >= 0")
     if len(Y) > max_samples:
-        Y = Y[_farthest_rows(Y, int(max_samples))]
+        Y = Y[np.sort(farthest_points(Y, int(max_samples)))]
     centre = Y.mean(axis=0)
     scale = float(np.sqrt(((Y - centre) ** 2).sum(axis=1).mean()))
     if not scale > 1e-9:
@@ -533,7 +524,7 @@ class NlpcaRig:
                 return self.coordinates(d) - target[rows]
         else:
             local = self.frame.pose_to_local(poses)
-            L = _second_moment_factor(self.frame.to_local(points), weights)
+            L = second_moment_factor(self.frame.to_local(points), weights)
 
             def residual(d, rows):
                 T = se3.exp(self.chart.twist(self.coordinates(d)))
@@ -599,39 +590,12 @@ def _levenberg_marquardt(residual, d, iterations: int, h: float = 1e-6):
     """Minimise |residual(d_n)|² for every row of ``d (N, 3)`` at once (``residual(x (n, 3), rows (n,))``
     gives the (n, m) residuals of the rows ``rows``); central-difference Jacobians with step ``h``.
     Rows drop out once their step falls below 1e-10 or their cost stops falling."""
-    d = d.copy()
 
-    def jacobian(x, rows):
-        cols = []
-        for k in range(3):
-            e = np.zeros(3)
-            e[k] = h
-            cols.append((residual(x + e, rows) - residual(x - e, rows)) / (2 * h))
-        return np.stack(cols, axis=2)
+    def evaluate(x, rows):
+        J = np.stack([(residual(x + e, rows) - residual(x - e, rows)) / (2 * h) for e in h * np.eye(3)], axis=2)
+        return residual(x, rows), J
 
-    r = residual(d, np.arange(len(d)))
-    cost = np.einsum("ij,ij->i", r, r)
-    mu = np.full(len(d), 1e-4)
-    active = np.arange(len(d))
-    for _ in range(iterations):
-        J = jacobian(d[active], active)
-        g = np.einsum("nij,ni->nj", J, r[active])
-        H = np.einsum("nij,nil->njl", J, J)
-        step = -np.linalg.solve(H + mu[active, None, None] * (np.eye(3) * (np.diagonal(H, axis1=1, axis2=2)[:, None, :]
-                                                                         + 1e-12)), g[..., None])[..., 0]
-        trial = d[active] + step
-        r_new = residual(trial, active)
-        cost_new = np.einsum("ij,ij->i", r_new, r_new)
-        better = cost_new < cost[active]
-        idx = active[better]
-        d[idx], r[idx], cost[idx] = trial[better], r_new[better], cost_new[better]
-        mu[active] = np.where(better, np.maximum(mu[active] / 3, 1e-12), mu[active] * 4)
-        stalled = ~better & (cost_new - cost[active] <= 1e-12 * (cost[active] + 1e-12))
-        done = (np.abs(step).max(axis=1) < 1e-10) | stalled | (mu[active] > 1e8)
-        active = active[~done]
-        if len(active) == 0:
-            break
-    return d
+    return levenberg_marquardt(evaluate, d, iterations, mu=1e-4, floor=1e-12)[0]
 
 
 def _orientation(rig: NlpcaRig, D) -> tuple[np.ndarray, np.ndarray]:
@@ -641,7 +605,7 @@ def _orientation(rig: NlpcaRig, D) -> tuple[np.ndarray, np.ndarray]:
     the jaw frame; in the order of the hierarchy each parameter takes the motion of largest
     |cosine| not yet taken. (Correlations with the displacement would not do: opening and
     retrusion go together, and the third component mixes protrusion with some opening.)"""
-    sample = D[_farthest_rows(D, min(len(D), 200))]
+    sample = D[np.sort(farthest_points(D, min(len(D), 200)))]
     axes = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])     # opening, lateral, protrusion
     h = 1e-4
     cos = np.zeros((3, 3))
@@ -680,8 +644,6 @@ def fit_nlpca(poses, frame: JawFrame | None = None, reference_point=None, points
             raise FacesimError("fit_nlpca: expected a jaw frame or the reference point (3,) mm")
         frame = JawFrame.from_poses(poses, reference_point)
     if points is None:
-        from facesim.jaw.evaluate import front_weights, mandible_points
-
         points = mandible_points()
         weights = front_weights(points, frame)
     chart = Se3Chart.of(frame, points, weights)

@@ -63,9 +63,9 @@ from scipy.linalg import solve
 
 from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
-from facesim.jaw.evaluate import farthest_points
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import BORDER_CURVES
+from facesim.jaw.points import farthest_points
 from facesim.jaw.rigfile import load_rig, save_rig
 from facesim.model import JawGeometry
 

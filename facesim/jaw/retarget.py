@@ -61,8 +61,8 @@ from scipy.optimize import linear_sum_assignment
 from facesim import se3
 from facesim.errors import FacesimError
 from facesim.jaw.classic import pivot_estimate
-from facesim.jaw.evaluate import farthest_points
 from facesim.jaw.frame import JawFrame
+from facesim.jaw.points import farthest_points
 from facesim.jaw.posselt import CURVES, PosseltRig, Shield, _design
 
 #: slider values (s_x right -> left, s_y closed -> open, s_z retruded -> protruded) of the named extremes

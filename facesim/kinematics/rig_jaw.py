@@ -31,12 +31,10 @@ import numpy as np
 
 from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw.classic import ClassicRig
 from facesim.jaw.frame import JawFrame
-from facesim.jaw.nlpca import NlpcaRig
 from facesim.jaw.posselt import PosseltRig
+from facesim.jaw.rigs import KINDS
 
-KINDS = {PosseltRig: "posselt", NlpcaRig: "nlpca", ClassicRig: "classic"}
 #: mm: a rig whose reference point lies this close to the model's incisor was fitted in its skull frame
 SAME_FRAME_TOLERANCE = 1.0
 
@@ -169,8 +167,8 @@ def rig_jaw_from_spec(model, spec: str, penalty_weight=1.0) -> RigJaw:
     """A :class:`RigJaw` from ``"posselt:RIG.npz"``, ``"nlpca:RIG.npz"`` or ``"classic:RIG.npz"``
     (``"rig:RIG.npz"`` takes any kind) for the model ``model`` (its ``jaw`` geometry places rigs
     fitted in another skull frame, module docstring)."""
-    from facesim.jaw import load_rig
     from facesim.jaw.rigfile import rig_kind
+    from facesim.jaw.rigs import load_rig
 
     kind, sep, path = str(spec).partition(":")
     if not sep or kind not in ("posselt", "nlpca", "classic", "rig") or not path:
@@ -192,7 +190,6 @@ def model_rig_jaw(model, model_path=None, penalty_weight=1.0) -> RigJaw:
     the rig fitted to motion generated for ``model.jaw`` (:mod:`facesim.jaw.model_rig`), found next
     to ``model_path`` (``<model>_posselt.npz``) or among the shipped rigs by its recorded TMJ."""
     from facesim.jaw.model_rig import find_model_rig, model_rig_path
-    from facesim.jaw.posselt import PosseltRig
 
     path = find_model_rig(model.jaw, model_path)
     if path is None:

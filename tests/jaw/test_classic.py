@@ -6,9 +6,9 @@ import pytest
 from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
 from facesim.jaw.classic import DOF, ClassicRig, fit_classic, pivot_estimate
-from facesim.jaw.evaluate import front_weights, mandible_points
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion
+from facesim.jaw.points import front_weights, mandible_points
 
 PIVOT = np.array([0.0, 38.0, -84.0])      # jaw frame: near the condyles, behind and above the incisor
 

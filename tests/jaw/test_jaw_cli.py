@@ -19,8 +19,9 @@ from facesim import se3
 from facesim.errors import FacesimError
 from facesim.jaw import load_rig
 from facesim.jaw.cli import add_jaw_commands
-from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
+from facesim.jaw.evaluate import pose_errors
 from facesim.jaw.motion import JawMotion, Subject
+from facesim.jaw.points import front_weights, mandible_points
 
 
 @functools.lru_cache(maxsize=1)

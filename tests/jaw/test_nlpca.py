@@ -8,7 +8,6 @@ import pytest
 from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
 from facesim.jaw import load_rig
-from facesim.jaw.evaluate import front_weights, mandible_points
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion
 from facesim.jaw.nlpca import (
@@ -22,6 +21,7 @@ from facesim.jaw.nlpca import (
     fit_pca,
     reconstruction_errors,
 )
+from facesim.jaw.points import front_weights, mandible_points
 
 YANG_MEAN_MM = 1.73       # Yang et al. 2018: mean error of their 3-parameter model on captured jaws
 

@@ -9,16 +9,10 @@ from scipy.spatial import cKDTree
 from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
 from facesim.jaw import load_rig
-from facesim.jaw.evaluate import (
-    compare_rigs,
-    format_table,
-    front_weights,
-    mandible_points,
-    pose_errors,
-    synthetic_mandible,
-)
+from facesim.jaw.evaluate import compare_rigs, format_table, pose_errors
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion, Subject
+from facesim.jaw.points import front_weights, mandible_points, synthetic_mandible
 from facesim.jaw.posselt import CURVES, PosseltRig, Shield, detect_border, fit_posselt
 
 

@@ -6,9 +6,10 @@ import pytest
 
 from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw.evaluate import front_weights, mandible_points, pose_errors
+from facesim.jaw.evaluate import pose_errors
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion, Subject
+from facesim.jaw.points import front_weights, mandible_points
 from facesim.jaw.posselt import Shield, fit_posselt
 from facesim.jaw.retarget import (
     EXTREMES,
