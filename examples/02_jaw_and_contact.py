@@ -61,8 +61,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.frames < 6:
         ap.error("--frames: expected at least 6")
-    from facesim.simulate import write_video
     from facesim.viz.render import render_model
+    from facesim.viz.video import write_video
 
     model = load_model(args.model)
     out = Path(args.out)

@@ -289,7 +289,8 @@ def cmd_model_render(args) -> int:
 
 def cmd_simulate(args) -> int:
     from facesim.fem.newton import NewtonOptions
-    from facesim.simulate import SimulateOptions, check_same_frames, read_activations_csv, read_jaw_csv, simulate
+    from facesim.controls_io import check_same_frames, read_activations_csv, read_jaw_csv
+    from facesim.simulate import SimulateOptions, simulate
 
     model = _load(args.model)
     frames, A = read_activations_csv(args.activations, model.muscles.names)
@@ -331,7 +332,9 @@ def cmd_solve_mocap(args) -> int:
     from facesim.fem.newton import NewtonOptions
     from facesim.inverse.gauss_newton import FitOptions
     from facesim.inverse.plots import plot_track
-    from facesim.inverse.tracking import SimulatorSpec, TrackOptions, bind_neutral, dask_client, match_markers, track
+    from facesim.inverse.parallel import SimulatorSpec, dask_client
+    from facesim.inverse.tracking import TrackOptions, track
+    from facesim.mocap.binding import bind_neutral, match_markers
     from facesim.mocap.io import frame_mask, read_markers
 
     model = _load(args.model)

@@ -25,12 +25,9 @@ computes the rest. A frame that does not converge is kept on disk for inspection
 from __future__ import annotations
 
 import csv
-import difflib
 import hashlib
-import io
 import json
 import math
-import os
 import re
 import time
 from dataclasses import dataclass, field
@@ -39,117 +36,18 @@ from pathlib import Path
 import numpy as np
 
 import facesim
-from facesim._csv import frame_numbers, numbers, read_table
 from facesim._files import atomic_write
 from facesim.constants import CONTACT_STIFFNESS
 from facesim.errors import FacesimError
 from facesim.fem.newton import NewtonOptions
+from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.model import FaceModel
 
 FRAME_LOG_COLUMNS = ("frame", "converged", "iterations", "relative_residual", "residual_N", "seconds",
                      "linear_iterations", "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm",
                      "inverted_tets", "min_J", "error")
-JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
-JAW_OPENING = ("opening",)
 _OUTPUT_FILES = ("markers.csv", "markers.trc", "frames.csv", "report.json", "video.mp4", "video.gif")
 _FRAME_FILE = re.compile(r"frame_\d+\.(ply|npz|png)$")
-
-
-# ------------------------------------------------------------------ inputs
-def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
-    """Read an activations CSV: header ``frame,<muscle>,...``, one row per frame, values in [0, 1].
-
-    Columns may name any subset of ``muscle_names`` in any order; muscles without a column stay
-    at 0. Returns ``frames (F,) int64`` (increasing) and ``A (F, n_muscles) float64`` in the order
-    of ``muscle_names``. Raises a one-line :class:`FacesimError` naming the file, line and
-    column for a missing or empty file, a missing ``frame`` column, an unknown muscle (with the
-    closest names), a duplicate column, a non-numeric value or one outside [0, 1].
-    """
-    muscle_names = tuple(muscle_names)
-    table = read_table(path, "activations file", example="frame," + ",".join(muscle_names[:2]) + ",...")
-    columns = table.header[1:]
-    for c in columns:
-        if c not in muscle_names:
-            close = difflib.get_close_matches(c, muscle_names, n=3, cutoff=0.5)
-            hint = f"closest: {', '.join(close)}" if close else \
-                f"the model's muscles are {', '.join(muscle_names[:6])}{', ...' if len(muscle_names) > 6 else ''}"
-            raise FacesimError(f"{table.path}: line {table.header_line}, column {c!r}: unknown muscle; {hint}")
-    values = numbers(table, columns)
-    bad = np.argwhere((values < 0.0) | (values > 1.0))
-    if len(bad):
-        i, j = bad[0]
-        raise FacesimError(f"{table.where(i, columns[j])}: activation {table.rows[i][j + 1]} outside [0, 1]")
-    frames = frame_numbers(table)
-    A = np.zeros((len(frames), len(muscle_names)))
-    A[:, [muscle_names.index(c) for c in columns]] = values
-    return frames, A
-
-
-def read_jaw_csv(path, model: FaceModel, jaw_model="rigid") -> tuple[np.ndarray, np.ndarray]:
-    """Read a jaw CSV and return ``frames (F,) int64`` and the jaw controls of ``jaw_model`` (a
-    :class:`~facesim.kinematics.jaw_models.JawModel` or its name): ``(F, 4, 4)`` mandible
-    transforms for the rigid jaw, ``(F, n_params)`` parameters for every other jaw model.
-
-    Rigid jaw, two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about the condyle
-    midpoint ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a rotation (rad,
-    positive opens the mouth) about the intercondylar axis. Both through
-    :meth:`facesim.kinematics.jaw_models.RigidJaw.from_rotation`.
-    Any other jaw model: ``frame,<param_names>`` -- for the sliding-condyle jaw
-    ``frame,opening,right_slide,left_slide`` (rad, mm, mm; Sifakis 2005 section 8), for a Posselt rig
-    ``frame,sx,sy,sz``, for an NLPCA rig ``frame,d1,d2,d3`` -- each value within the model's bounds.
-    Columns are matched by name, in any order.
-    """
-    from facesim.kinematics.jaw_models import RigidJaw, make_jaw_model
-
-    jaw_model = make_jaw_model(model, jaw_model)
-    if jaw_model.n_params:
-        return _read_parameter_csv(path, jaw_model)
-    table = read_table(path, "jaw file", example="frame,rx,ry,rz,tx,ty,tz' or 'frame,opening")
-    columns = set(table.header[1:])
-    if columns == set(JAW_OPENING):
-        opening = numbers(table, JAW_OPENING)[:, 0]
-        T = np.array([RigidJaw.from_rotation(model, float(v)) for v in opening])
-    elif columns == set(JAW_FULL):
-        q = numbers(table, JAW_FULL)
-        T = np.array([RigidJaw.from_rotation(model, rotvec=r[:3], translation=r[3:]) for r in q])
-    else:
-        unknown = sorted(columns - set(JAW_FULL) - set(JAW_OPENING))
-        what = f"unknown column {unknown[0]!r}" if unknown else f"columns {','.join(table.header[1:])}"
-        raise FacesimError(f"{table.path}: line {table.header_line}: {what}; expected 'frame,rx,ry,rz,tx,ty,tz' "
-                           "(rotation vector in rad about the condyle midpoint, translation in mm) or 'frame,opening' "
-                           "(rad)")
-    return frame_numbers(table), T.reshape(-1, 4, 4)
-
-
-def _read_parameter_csv(path, jaw) -> tuple[np.ndarray, np.ndarray]:
-    """``frame,<jaw.param_names>``: the parameters of a jaw model within its bounds."""
-    names = tuple(jaw.param_names)
-    table = read_table(path, "jaw file", example="frame," + ",".join(names))
-    if set(table.header[1:]) != set(names):
-        raise FacesimError(f"{table.path}: line {table.header_line}: columns {','.join(table.header[1:])}; expected "
-                           f"'frame,{','.join(names)}' for the {jaw.name} jaw")
-    q = numbers(table, names)
-    lo, hi = np.asarray(jaw.bounds, dtype=np.float64).T
-    tol = 1e-9 + 1e-6 * (hi - lo)
-    bad = np.argwhere((q < lo - tol) | (q > hi + tol))
-    if len(bad):
-        r, c = bad[0]
-        raise FacesimError(f"{table.path}: data row {r + 1}, column {names[c]!r}: {q[r, c]:g} outside "
-                           f"[{lo[c]:g}, {hi[c]:g}]")
-    return frame_numbers(table), np.ascontiguousarray(q)
-
-
-def check_same_frames(path, frames, reference_path, reference_frames) -> None:
-    """One-line error unless ``frames`` (of ``path``) equal ``reference_frames`` (of ``reference_path``)."""
-    frames, ref = np.asarray(frames), np.asarray(reference_frames)
-    if len(frames) != len(ref):
-        raise FacesimError(f"{path}: {len(frames)} frames, but {reference_path} has {len(ref)}; expected the "
-                           "same frame column")
-    diff = np.flatnonzero(frames != ref)
-    if len(diff):
-        i = diff[0]
-        raise FacesimError(f"{path}: data row {i + 1} is frame {frames[i]}, but {reference_path} has frame {ref[i]} "
-                           "there; expected the same frame column")
 
 
 # ------------------------------------------------------------------ options and paths
@@ -212,52 +110,6 @@ class _Out:
                         p.unlink()
 
 
-class _Log:
-    """An append-only text log: each :meth:`add` writes one complete line and flushes it to disk."""
-
-    def __init__(self, path: Path, header: str, lines):
-        text = header + "".join(lines)
-        atomic_write(path, lambda tmp: tmp.write_text(text))
-        self.file = open(path, "a", encoding="utf-8")  # noqa: SIM115  (kept open across frames)
-
-    def add(self, line: str) -> None:
-        self.file.write(line)
-        self.file.flush()
-        os.fsync(self.file.fileno())
-
-    def close(self) -> None:
-        self.file.close()
-
-
-def _csv_line(values) -> str:
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerow(values)
-    return buf.getvalue()
-
-
-def _log_lines(path: Path, header: str, n_fields: int) -> dict[int, str]:
-    """Complete, well-formed lines of an earlier log by frame (a line cut by a crash is dropped)."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError):
-        return {}
-    lines = text.splitlines(keepends=True)
-    if not lines or lines[0] != header:
-        return {}
-    out = {}
-    for line in lines[1:]:
-        if not line.endswith("\n"):
-            break
-        fields = next(csv.reader([line]), [])
-        if len(fields) != n_fields:
-            break
-        try:
-            out[int(fields[0])] = line
-        except ValueError:
-            break
-    return out
-
-
 def _fingerprint(model: FaceModel) -> str:
     """Short hash of what the results depend on in the model (mesh, muscles, markers)."""
     h = hashlib.sha1()
@@ -291,7 +143,7 @@ _FORMATS = {"relative_residual": "{:.3e}", "residual_N": "{:.3e}", "seconds": "{
 
 
 def _row_line(row: dict) -> str:
-    return _csv_line([_FORMATS.get(c, "{}").format(row[c]) for c in FRAME_LOG_COLUMNS])
+    return csv_line([_FORMATS.get(c, "{}").format(row[c]) for c in FRAME_LOG_COLUMNS])
 
 
 def _parse_row(line: str) -> dict:
@@ -302,38 +154,6 @@ def _parse_row(line: str) -> dict:
     for c in ("relative_residual", "residual_N", "seconds", "min_J", *_MEASURES):
         row[c] = float(row[c])
     return row
-
-
-# ------------------------------------------------------------------ video
-def write_video(pngs, out_dir, fps: float) -> tuple[Path, str]:
-    """Movie of the PNG files ``pngs`` at ``fps``: ``OUT/video.mp4`` if imageio and imageio-ffmpeg
-    are installed, else an animated GIF ``OUT/video.gif`` through PIL. Returns the path and a
-    one-line note ("" for MP4)."""
-    from PIL import Image
-
-    pngs = list(pngs)
-    if not pngs:
-        raise FacesimError(f"{out_dir}: no rendered frames to make a video of")
-    try:
-        import imageio.v2 as imageio
-        import imageio_ffmpeg  # noqa: F401  (imageio's MP4 backend)
-    except ImportError:
-        imageio = None
-    out_dir = Path(out_dir)
-    if imageio is not None:
-        def write_mp4(tmp):
-            with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=8) as writer:
-                for p in pngs:
-                    writer.append_data(np.asarray(Image.open(p).convert("RGB")))
-        return atomic_write(out_dir / "video.mp4", write_mp4), ""
-
-    def write_gif(tmp):
-        images = [Image.open(p).convert("RGB") for p in pngs]
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], loop=0,
-                       duration=max(20, round(1000.0 / fps)))
-    path = atomic_write(out_dir / "video.gif", write_gif)
-    return path, (f"imageio-ffmpeg is not installed: wrote an animated GIF {path} instead of MP4 "
-                  "(pip install imageio imageio-ffmpeg for MP4)")
 
 
 # ------------------------------------------------------------------ the run
@@ -362,8 +182,8 @@ def _validate(model: FaceModel, activations, frames, jaw, jaw_model):
 
 def _complete_frames(out: _Out, frames, A, J, model: FaceModel, mk_header: str, log_header: str):
     """Number of leading frames already complete in ``out`` and their log lines."""
-    rows = _log_lines(out.frames_csv, log_header, len(FRAME_LOG_COLUMNS))
-    marks = _log_lines(out.markers_csv, mk_header, 1 + 3 * model.n_markers)
+    rows = read_lines(out.frames_csv, log_header, len(FRAME_LOG_COLUMNS))
+    marks = read_lines(out.markers_csv, mk_header, 1 + 3 * model.n_markers)
     n = 0
     for i, k in enumerate(frames):
         k = int(k)
@@ -517,8 +337,8 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
                 if png and colliders else ()
             _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed)
 
-    frame_log = _Log(out.frames_csv, log_header, old_rows)
-    marker_log = _Log(out.markers_csv, mk_header, old_marks)
+    frame_log = FrameLog(out.frames_csv, log_header, old_rows)
+    marker_log = FrameLog(out.markers_csv, mk_header, old_marks)
     status = "running"
     try:
         with tqdm(total=len(frames), initial=n_done, desc="simulate", unit="frame", disable=not progress) as bar:
@@ -553,6 +373,8 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         if options.render:
             summary["outputs"]["png"] = str(out.root / "png")
         if status == "complete" and options.video:
+            from facesim.viz.video import write_video
+
             path, note = write_video([out.png(int(k)) for k in frames], out.root, options.fps)
             summary["outputs"]["video"] = str(path)
             summary["video_note"] = note
@@ -580,4 +402,4 @@ def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
     }
 
 
-__all__ = ["SimulateOptions", "check_same_frames", "read_activations_csv", "read_jaw_csv", "simulate", "write_video"]
+__all__ = ["FRAME_LOG_COLUMNS", "SimulateOptions", "simulate"]

@@ -16,11 +16,12 @@ from PIL import Image
 
 from facesim.cli import main
 from facesim.controls import rotation_about
+from facesim.controls_io import read_activations_csv, read_jaw_csv
 from facesim.kinematics.jaw_models import RigidJaw
 from facesim.errors import FacesimError
 from facesim.fem.newton import NewtonOptions
 from facesim.mocap.io import read_markers_csv, read_trc
-from facesim.simulate import SimulateOptions, read_activations_csv, read_jaw_csv, simulate
+from facesim.simulate import SimulateOptions, simulate
 
 ACTIVATIONS = "frame,zygomaticus_major_L,orbicularis_oris\n0,0,0\n1,1,0\n2,0.5,0.3\n"
 JAW = "frame,opening\n0,0\n1,0\n2,0.05\n"
@@ -300,7 +301,7 @@ def test_sliding_condyle_jaw_csv(tmp_path):
 
     from facesim.kinematics.condyle import SlidingCondyleJaw
     from facesim.model import load_model
-    from facesim.simulate import read_jaw_csv
+    from facesim.controls_io import read_jaw_csv
 
     model = load_model(Path(__file__).resolve().parents[1] / "meshes" / "face_coarse.npz")
     f = tmp_path / "j.csv"

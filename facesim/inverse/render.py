@@ -145,8 +145,7 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
     """
     from tqdm import tqdm
 
-    from facesim.inverse.tracking import stabilise
-    from facesim.simulate import write_video
+    from facesim.mocap.stabilise import stabilise
     from facesim.viz.render import (
         HEAD_MARKER_COLOUR,
         MARKER_COLOUR,
@@ -154,6 +153,7 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
         VIEWS,
         _save_png,
     )
+    from facesim.viz.video import write_video
 
     if view not in VIEWS:
         raise FacesimError(f"view: unknown view {view!r}; expected one of {', '.join(VIEWS)}")

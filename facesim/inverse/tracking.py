@@ -3,7 +3,9 @@
 ``track(sim, frames, P, out_dir)`` fits the capture's frames (already in the model's marker
 order) with :func:`~facesim.inverse.gauss_newton.fit_frame`, each warm-started from the previous
 frame's controls and equilibrium, after stabilising the head (rigid Procrustes of the head markers
-onto the model's rest head markers) or leaving it as captured.
+onto the model's rest head markers, :func:`facesim.mocap.stabilise.stabilise`) or leaving it as
+captured, and with ``neutral`` frames after rebinding the model's markers to them
+(:func:`facesim.mocap.binding.bind_neutral`).
 
 Per frame (:func:`fit_markers`): missing markers (NaN) are dropped; the marker distance is plain
 least squares (``loss="l2"``) or a robust loss on each marker's distance ``r`` (mm), minimised by
@@ -21,13 +23,14 @@ them.
 
 Chunks: with ``chunk_size`` the sequence is split into chunks of that many frames, each starting
 cold (from ``start``, default rest) -- so chunks are independent and can be solved in parallel on
-a ``dask.distributed`` cluster (``client``; :func:`dask_client` makes one). Every task solves one
-frame, chained on the previous frame of its chunk so the worker holding that frame's equilibrium
-warm-starts from it; workers build their simulator from a :class:`SimulatorSpec` (model file and
-options, cached per worker process). The client writes every frame as it arrives.
+a ``dask.distributed`` cluster (``client``; :func:`facesim.inverse.parallel.dask_client` makes one).
+Every task solves one frame, chained on the previous frame of its chunk so the worker holding that
+frame's equilibrium warm-starts from it; workers build their simulator from a
+:class:`~facesim.inverse.parallel.SimulatorSpec` (model file and options, cached per worker
+process). The client writes every frame as it arrives.
 
-Files in ``out_dir`` (append-only logs, one complete line per frame, flushed and synced;
-``resume`` keeps the frames already written and solves only the others):
+Files in ``out_dir`` (append-only logs, :mod:`facesim.framelog`: one complete line per frame,
+flushed and synced; ``resume`` keeps the frames already written and solves only the others):
 
 * ``activations.csv`` ``frame,<muscle>,...``; ``jaw.csv`` ``frame,<jaw parameter>,...``;
 * ``residuals.csv`` ``frame,rms,<marker>,...`` (mm, NaN for missing markers);
@@ -41,19 +44,12 @@ Files in ``out_dir`` (append-only logs, one complete line per frame, flushed and
 
 from __future__ import annotations
 
-import copy
 import csv
 import functools
-import hashlib
-import io
 import json
 import math
-import os
 import shutil
 import time
-import uuid
-import warnings
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,10 +58,12 @@ import numpy as np
 from facesim._files import atomic_write
 from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
-from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
 from facesim.inverse.jacobian import ControlSpace
-from facesim.se3 import rigid_fit
+from facesim.inverse.parallel import SimulatorSpec, solve_on_cluster
+from facesim.mocap.binding import bind_neutral
+from facesim.mocap.stabilise import check_window, stabilise
 
 LOSSES = ("l2", "huber", "cauchy")
 LOG_COLUMNS = ("frame", "converged", "stop_reason", "gn_steps", "equilibria", "newton_iterations", "linear_solves",
@@ -84,7 +82,7 @@ class TrackOptions:
     (None: 3x ``fit.noise``); irls_steps : most reweighted passes of a robust loss; chunk_size :
     frames per independently (cold-) started chunk (None: one chunk, or with a cluster the frames
     divided evenly among its workers); head_smoothing : with ``"procrustes"``, smooth the head
-    transforms over this many frames (odd, >= 3; 0: off; see :func:`stabilise`)."""
+    transforms over this many frames (odd, >= 3; 0: off; see :func:`facesim.mocap.stabilise.stabilise`)."""
 
     fit: FitOptions = FitOptions()
     head: str = "procrustes"
@@ -109,163 +107,12 @@ class TrackOptions:
         if self.chunk_size is not None and self.chunk_size < 1:
             raise FacesimError(f"chunk size: expected >= 1 frames, got {self.chunk_size}")
         if self.head_smoothing:
-            _check_window(self.head_smoothing)
+            check_window(self.head_smoothing)
 
     @property
     def scale(self) -> float:
         """The robust loss scale, mm."""
         return self.loss_scale if self.loss_scale is not None else 3.0 * self.fit.noise
-
-
-# ------------------------------------------------------------------ the simulator, on any worker
-@dataclass(frozen=True)
-class SimulatorSpec:
-    """What a worker process needs to build the simulator of a run: the model file (absolute path
-    as the workers see it, and the SHA-256 of its bytes, checked there so every worker solves the
-    client's model), the equilibrium options (with the contact set-up) and the jaw model name
-    (:func:`facesim.kinematics.jaw_models.make_jaw_model`). Small and picklable."""
-
-    model: str
-    sha256: str
-    options: EquilibriumOptions = EquilibriumOptions()
-    jaw_model: str = "sliding-condyle"
-
-    @staticmethod
-    def of(path, options: EquilibriumOptions | None = None, jaw_model: str = "sliding-condyle") -> SimulatorSpec:
-        path = Path(path).resolve()
-        if not path.is_file():
-            raise FacesimError(f"{path}: no such model file")
-        kind, sep, rig = jaw_model.partition(":")
-        if sep:   # rig files too must resolve the same on the workers
-            jaw_model = f"{kind}:{Path(rig).resolve()}"
-        return SimulatorSpec(str(path), _sha256(path), options or EquilibriumOptions(), jaw_model)
-
-    def build(self) -> FaceSimulator:
-        """The simulator (built once per process and spec, then shared: it is never mutated)."""
-        return _simulator(self)
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-@functools.lru_cache(maxsize=2)
-def _simulator(spec: SimulatorSpec) -> FaceSimulator:
-    from facesim.kinematics.jaw_models import make_jaw_model
-    from facesim.model import load_model
-
-    path = Path(spec.model)
-    if not path.is_file():
-        raise FacesimError(f"{path}: no such model file on this worker (workers must see the model at the "
-                           "client's path)")
-    if _sha256(path) != spec.sha256:
-        raise FacesimError(f"{path}: the model file on this worker differs from the client's")
-    model = load_model(path)
-    return FaceSimulator(model, spec.options, jaw_model=make_jaw_model(model, spec.jaw_model, model_path=path))
-
-
-@contextmanager
-def dask_client(workers: int | None = None, scheduler: str | None = None):
-    """A ``distributed.Client``: on a new LocalCluster of ``workers`` processes (one thread each,
-    numba's threads shared out among them) or connected to the scheduler at ``scheduler``
-    (e.g. ``tcp://host:8786``). Closed, with its cluster, on leaving the block."""
-    if (workers is None) == (scheduler is None):
-        raise FacesimError("parallel tracking: give either a number of workers or a scheduler address")
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError:
-        raise FacesimError("parallel tracking needs dask.distributed: pip install 'dask[distributed]'") from None
-    if scheduler is not None:
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            raise FacesimError(f"cannot reach the dask scheduler at {scheduler} ({exc})") from None
-        with client:
-            yield client
-        return
-    if workers < 1:
-        raise FacesimError(f"workers: expected >= 1, got {workers}")
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                      env={"NUMBA_NUM_THREADS": str(threads)}) as cluster, Client(cluster) as client:
-        yield client
-
-
-# ------------------------------------------------------------------ markers
-def match_markers(model_names, data_names) -> tuple[np.ndarray, list[str], list[str]]:
-    """Index of each model marker in the capture (-1 if absent), the capture's names the model
-    does not have and the model's names the capture does not have. Names match exactly, then
-    case-insensitively."""
-    data_names = list(data_names)
-    exact = {n: i for i, n in enumerate(data_names)}
-    folded = {n.lower(): i for i, n in enumerate(data_names)}
-    index = np.array([exact.get(n, folded.get(n.lower(), -1)) for n in model_names], dtype=np.int64)
-    used = set(index[index >= 0].tolist())
-    unmatched_data = [n for i, n in enumerate(data_names) if i not in used]
-    missing_model = [n for n, i in zip(model_names, index) if i < 0]
-    return index, unmatched_data, missing_model
-
-
-def stabilise(model, P: np.ndarray, window: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Capture ``P (F, r, 3)`` (model marker order) moved per frame into the model's head frame by
-    the rigid fit of its head markers onto the model's rest head markers. Returns the moved
-    positions and the per-frame 4x4 transforms (capture -> model). Needs >= 3 head markers.
-
-    ``window`` (odd, >= 3; 0: off): smooth the transforms over time with a Savitzky-Golay filter
-    (quadratic, ``window`` frames) of their rotation vectors and translations. A few head markers
-    on the upper face carry the noise of the capture into every frame's fit, and the lever arm to
-    the chin multiplies it (the demo clip: up to 2.7 mm RMS over the face in one frame at 0.5 mm
-    noise); the head moves smoothly, its noise does not. Frames with too few head markers then
-    take the transform interpolated from their neighbours."""
-    head = np.flatnonzero(model.markers.head)
-    rest = model.marker_positions()[head]
-    Ts = np.full((len(P), 4, 4), np.nan)
-    for f, frame in enumerate(P):
-        ok = np.isfinite(frame[head]).all(axis=1)
-        if ok.sum() >= 3:
-            Ts[f] = rigid_fit(frame[head][ok], rest[ok])
-    if window:
-        Ts = smooth_transforms(Ts, window)
-    out = np.einsum("fij,frj->fri", Ts[:, :3, :3], P) + Ts[:, None, :3, 3]
-    return out, Ts
-
-
-def _check_window(window: int) -> None:
-    if window < 3 or window % 2 == 0:
-        raise FacesimError(f"head smoothing: expected 0 (off) or an odd window of >= 3 frames, got {window}")
-
-
-def smooth_transforms(Ts: np.ndarray, window: int) -> np.ndarray:
-    """Rigid transforms ``Ts (F, 4, 4)`` (NaN: unknown) smoothed over time: rotation vectors
-    (relative to their mean rotation, so none is near pi) and translations filtered by a
-    quadratic Savitzky-Golay filter of ``window`` frames (odd, >= 3); unknown frames are first
-    interpolated from the known ones. All NaN, or one frame: returned unchanged."""
-    from scipy.signal import savgol_filter
-    from scipy.spatial.transform import Rotation
-
-    _check_window(window)
-    known = np.isfinite(Ts).all(axis=(1, 2))
-    if known.sum() < 2:
-        return Ts
-    t = np.arange(len(Ts))
-    mean = Rotation.from_matrix(Ts[known, :3, :3]).mean()
-    rv = np.full((len(Ts), 3), np.nan)
-    rv[known] = (mean.inv() * Rotation.from_matrix(Ts[known, :3, :3])).as_rotvec()
-    tr = Ts[:, :3, 3].copy()
-    for arr in (rv, tr):
-        for k in range(3):
-            arr[:, k] = np.interp(t, t[known], arr[known, k])
-    w = min(window, len(Ts) if len(Ts) % 2 else len(Ts) - 1)
-    if w >= 3:
-        rv, tr = (savgol_filter(a, w, 2, axis=0, mode="interp") for a in (rv, tr))
-    out = np.tile(np.eye(4), (len(Ts), 1, 1))
-    out[:, :3, :3] = (mean * Rotation.from_rotvec(rv)).as_matrix()
-    out[:, :3, 3] = tr
-    return out
 
 
 # ------------------------------------------------------------------ one frame
@@ -366,10 +213,10 @@ def _solve_frame(sim, space, options, target, k: int, i: int, controls, x, jacob
     jaw = np.atleast_1d(fit.controls.jaw) if space.n_jaw else []
     measures = sim.contact_measures(fit.x, fit.controls, k)
     lines = (
-        _line([k, *map(_fmt, fit.controls.a)]),
-        _line([k, *map(_fmt, jaw)]),
-        _line([k, _fmt(rep.marker_rms), *map(_fmt, r)]),
-        _line([k, int(rep.converged), rep.stop_reason, total["gn_steps"], total["equilibria"],
+        csv_line([k, *map(_fmt, fit.controls.a)]),
+        csv_line([k, *map(_fmt, jaw)]),
+        csv_line([k, _fmt(rep.marker_rms), *map(_fmt, r)]),
+        csv_line([k, int(rep.converged), rep.stop_reason, total["gn_steps"], total["equilibria"],
                total["newton_iterations"], total["linear_solves"], _fmt(rep.marker_rms), _fmt(rep.worst_violation),
                used, len(outliers), len(fits), *(_fmt(measures[c]) for c in _MEASURES), f"{total['seconds']:.3f}",
                rep.error]),
@@ -384,47 +231,6 @@ def _solve_frame(sim, space, options, target, k: int, i: int, controls, x, jacob
 _MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
 
 
-def with_markers(sim, markers):
-    """``sim`` whose model carries ``markers`` (a :class:`~facesim.model.MarkerSet`; None: ``sim``
-    itself). A shallow copy: the mesh, its sparsity pattern and solvers are shared."""
-    if markers is None or markers is sim.model.markers:
-        return sim
-    other = copy.copy(sim)
-    other.model = sim.model.with_(markers=markers)
-    return other
-
-
-def bind_neutral(sim, neutral, head: str = "procrustes"):
-    """``sim`` with its model's markers bound where the capture's neutral frames ``neutral (r, 3)``
-    or ``(k, r, 3)`` put them (model marker order, NaN missing; stabilised first with
-    ``head="procrustes"``; several frames: the per-marker median, robust to an outlier in one
-    frame) by :func:`facesim.mocap.binding.rebind_markers`, and a summary of how far the markers
-    moved (mm)."""
-    from facesim.mocap.binding import rebind_markers
-
-    model = sim.model
-    neutral = np.asarray(neutral, dtype=np.float64)
-    neutral = neutral[None] if neutral.ndim == 2 else neutral
-    if neutral.ndim != 3 or neutral.shape[1:] != (model.n_markers, 3) or not len(neutral):
-        raise FacesimError(f"neutral markers: expected (k, {model.n_markers}, 3) positions, got {neutral.shape}")
-    if head == "procrustes":
-        neutral = stabilise(model, neutral)[0]
-    with warnings.catch_warnings():   # a marker missing in every neutral frame keeps its binding
-        warnings.simplefilter("ignore", RuntimeWarning)
-        neutral = np.nanmedian(neutral, axis=0)
-    bound, moved = rebind_markers(model, neutral)
-    summary = {"markers_moved_mm": {"mean": round(float(moved.mean()), 3), "max": round(float(moved.max()), 3)},
-               "largest": {model.markers.names[j]: round(float(moved[j]), 3) for j in np.argsort(moved)[-3:][::-1]}}
-    return with_markers(sim, bound.markers), summary
-
-
-def _solve_task(spec: SimulatorSpec, space, options, target, k: int, i: int, state, markers=None):
-    """A worker's task: frame ``k`` from ``state = (_, controls, x, jacobian)`` of the frame before
-    it (a Jacobian that crossed processes lost its factorisation; fit_frame copes)."""
-    _, controls, x, jacobian = state
-    return _solve_frame(with_markers(spec.build(), markers), space, options, target, k, i, controls, x, jacobian)
-
-
 def _outliers(P, target, options: TrackOptions) -> list[int]:
     r = np.linalg.norm(P - target, axis=1)
     ok = np.isfinite(r)
@@ -437,12 +243,6 @@ def _outliers(P, target, options: TrackOptions) -> list[int]:
 
 
 # ------------------------------------------------------------------ files
-def _line(values) -> str:
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerow(values)
-    return buf.getvalue()
-
-
 def _fmt(v) -> str:
     return "nan" if not np.isfinite(v) else f"{v:.6g}"
 
@@ -455,7 +255,7 @@ class _Outputs:
     def __init__(self, out: Path, headers: dict[str, list[str]], frames, resume: bool):
         self.out = out
         self.frames = [int(k) for k in frames]
-        self.headers = {name: _line(headers[name]) for name in LOGS}
+        self.headers = {name: csv_line(headers[name]) for name in LOGS}
         self.done: dict[int, tuple[str, ...]] = {}
         if resume:
             for folder in (out / CHUNKS, out):   # the merged files' lines win
@@ -475,41 +275,20 @@ class _Outputs:
 
     def _read(self, folder: Path) -> dict[int, tuple[str, ...]]:
         """Frames with a complete line in all four logs of ``folder`` (matching headers)."""
-        rows = []
-        for name in LOGS:
-            path = folder / f"{name}.csv"
-            lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
-            if not lines or lines[0] != self.headers[name]:
-                return {}
-            width = len(next(csv.reader([self.headers[name]])))
-            found = {}
-            for ln in lines[1:]:
-                fields = next(csv.reader([ln]), [])
-                if ln.endswith("\n") and len(fields) == width:
-                    try:
-                        found[int(fields[0])] = ln
-                    except ValueError:
-                        continue
-            rows.append(found)
+        rows = [read_lines(folder / f"{name}.csv", self.headers[name]) for name in LOGS]
+        if not all(rows):
+            return {}
         common = set.intersection(*(set(r) for r in rows))
         return {k: tuple(r[k] for r in rows) for k in common}
 
-    def _open(self, folder: Path, frames) -> dict:
-        files = {}
-        for j, name in enumerate(LOGS):
-            text = self.headers[name] + "".join(self.done[k][j] for k in frames)
-            path = folder / f"{name}.csv"
-            atomic_write(path, lambda tmp, text=text: tmp.write_text(text))
-            files[name] = open(path, "a", encoding="utf-8")  # noqa: SIM115
-        return files
+    def _open(self, folder: Path, frames) -> dict[str, FrameLog]:
+        return {name: FrameLog(folder / f"{name}.csv", self.headers[name], (self.done[k][j] for k in frames))
+                for j, name in enumerate(LOGS)}
 
     @staticmethod
-    def _write(files: dict, lines) -> None:
+    def _write(logs: dict[str, FrameLog], lines) -> None:
         for name, ln in zip(LOGS, lines):
-            fh = files[name]
-            fh.write(ln)
-            fh.flush()
-            os.fsync(fh.fileno())
+            logs[name].add(ln)
 
     def add(self, i: int, lines) -> None:
         """Write frame ``frames[i]``: into the merged logs if every frame before it is written
@@ -526,9 +305,9 @@ class _Outputs:
             self.n_merged += 1
 
     def close(self) -> None:
-        for files in (self.merged, self.ahead or {}):
-            for fh in files.values():
-                fh.close()
+        for logs in (self.merged, self.ahead or {}):
+            for log in logs.values():
+                log.close()
         if self.n_merged == len(self.frames):
             shutil.rmtree(self.out / CHUNKS, ignore_errors=True)
 
@@ -567,39 +346,13 @@ def _solve_here(sim, space, options, frames, P, runs, starts):
             yield solved
 
 
-def _solve_on_cluster(client, spec, space, options, frames, P, runs, starts, markers=None):
-    """Submit every frame as a task chained on the frame before it in its chunk (earlier frames
-    first); yield the solved frames as they finish."""
-    import operator
-
-    from distributed import as_completed
-
-    token = uuid.uuid4().hex[:8]
-    rows = []
-    for (first, stop, _), controls in zip(runs, starts):
-        state = (None, controls, None, None)
-        for i in range(first, stop):
-            # only the rows are held here: the scheduler keeps each state while the next frame needs it
-            state = client.submit(_solve_task, spec, space, options, P[i], int(frames[i]), i, state, markers,
-                                  key=f"facesim-frame-{token}-{i}", priority=-i)
-            rows.append(client.submit(operator.getitem, state, 0, key=f"facesim-row-{token}-{i}", priority=-i))
-        state = None
-    finished = False
-    try:
-        for fut in as_completed(rows):
-            yield fut.result()
-        finished = True
-    finally:
-        if not finished:
-            client.cancel(rows)
-
-
 def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None = None, start: Controls | None = None,
           resume: bool = False, progress: bool = True, client=None, neutral=None) -> dict:
     """Fit every frame of ``P (F, r, 3)`` (mm, the model's marker order, NaN missing; frame numbers
     ``frames (F,)``, unique) and write the results into ``out_dir`` (see the module doc).
 
-    ``sim``: a :class:`~facesim.fem.equilibrium.FaceSimulator` or a :class:`SimulatorSpec`;
+    ``sim``: a :class:`~facesim.fem.equilibrium.FaceSimulator` or a
+    :class:`~facesim.inverse.parallel.SimulatorSpec`;
     ``client``: a ``distributed.Client`` solving the chunks in parallel (needs a spec). ``start``:
     controls each chunk starts from (default rest). ``resume``: keep the frames in ``out_dir``
     and solve only the others (a run continues from its last written frame, warm-started from
@@ -658,8 +411,8 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     t_start = time.perf_counter()
     solved: dict[int, _Solved] = {}
     if client is not None:
-        results = _solve_on_cluster(client, spec, space, options, frames, P, runs, starts,
-                                    None if rebinding is None else model.markers)
+        results = solve_on_cluster(client, _solve_frame, spec, space, options, frames, P, runs, starts,
+                                   None if rebinding is None else model.markers)
     else:
         results = _solve_here(local, space, options, frames, P, runs, starts)
     try:
@@ -713,5 +466,4 @@ def _rest_jaw(space: ControlSpace):
     return np.zeros(space.n_jaw) if space.jaw_rest is None else np.array(space.jaw_rest)
 
 
-__all__ = ["bind_neutral", "LOSSES", "SimulatorSpec", "TrackOptions", "dask_client", "fit_markers", "loss_weights", "match_markers",
-           "stabilise", "track"]
+__all__ = ["LOG_COLUMNS", "LOGS", "LOSSES", "TrackOptions", "fit_markers", "loss_weights", "track"]

@@ -8,15 +8,21 @@ fold projects differently). :func:`rebind_markers` moves each binding to where a
 of the capture puts that marker: the closest point of the skin near the model's own binding
 (triangles within ``radius`` of it whose normal agrees with its triangle's), plus the normal
 offset of the captured point from that surface. The capture's frame must show the neutral face,
-already in the model's head frame (stabilised).
+already in the model's head frame (stabilised); :func:`bind_neutral` does that for a simulator and
+several neutral frames (stabilised, per-marker median). :func:`match_markers` pairs the capture's
+marker names with the model's.
 """
 
 from __future__ import annotations
+
+import copy
+import warnings
 
 import numpy as np
 import trimesh
 
 from facesim.errors import FacesimError
+from facesim.mocap.stabilise import stabilise
 from facesim.model import FaceModel, MarkerSet
 
 #: Skin triangles farther than this from a marker's own binding are not candidates (mm).
@@ -68,4 +74,50 @@ def rebind_markers(model: FaceModel, neutral, radius: float = SEARCH_RADIUS,
     return out, moved
 
 
-__all__ = ["rebind_markers", "SEARCH_RADIUS"]
+def match_markers(model_names, data_names) -> tuple[np.ndarray, list[str], list[str]]:
+    """Index of each model marker in the capture (-1 if absent), the capture's names the model
+    does not have and the model's names the capture does not have. Names match exactly, then
+    case-insensitively."""
+    data_names = list(data_names)
+    exact = {n: i for i, n in enumerate(data_names)}
+    folded = {n.lower(): i for i, n in enumerate(data_names)}
+    index = np.array([exact.get(n, folded.get(n.lower(), -1)) for n in model_names], dtype=np.int64)
+    used = set(index[index >= 0].tolist())
+    unmatched_data = [n for i, n in enumerate(data_names) if i not in used]
+    missing_model = [n for n, i in zip(model_names, index) if i < 0]
+    return index, unmatched_data, missing_model
+
+
+def with_markers(sim, markers):
+    """``sim`` whose model carries ``markers`` (a :class:`~facesim.model.MarkerSet`; None: ``sim``
+    itself). A shallow copy: the mesh, its sparsity pattern and solvers are shared."""
+    if markers is None or markers is sim.model.markers:
+        return sim
+    other = copy.copy(sim)
+    other.model = sim.model.with_(markers=markers)
+    return other
+
+
+def bind_neutral(sim, neutral, head: str = "procrustes"):
+    """``sim`` with its model's markers bound where the capture's neutral frames ``neutral (r, 3)``
+    or ``(k, r, 3)`` put them (model marker order, NaN missing; stabilised first with
+    ``head="procrustes"``; several frames: the per-marker median, robust to an outlier in one
+    frame) by :func:`rebind_markers`, and a summary of how far the markers
+    moved (mm)."""
+    model = sim.model
+    neutral = np.asarray(neutral, dtype=np.float64)
+    neutral = neutral[None] if neutral.ndim == 2 else neutral
+    if neutral.ndim != 3 or neutral.shape[1:] != (model.n_markers, 3) or not len(neutral):
+        raise FacesimError(f"neutral markers: expected (k, {model.n_markers}, 3) positions, got {neutral.shape}")
+    if head == "procrustes":
+        neutral = stabilise(model, neutral)[0]
+    with warnings.catch_warnings():   # a marker missing in every neutral frame keeps its binding
+        warnings.simplefilter("ignore", RuntimeWarning)
+        neutral = np.nanmedian(neutral, axis=0)
+    bound, moved = rebind_markers(model, neutral)
+    summary = {"markers_moved_mm": {"mean": round(float(moved.mean()), 3), "max": round(float(moved.max()), 3)},
+               "largest": {model.markers.names[j]: round(float(moved[j]), 3) for j in np.argsort(moved)[-3:][::-1]}}
+    return with_markers(sim, bound.markers), summary
+
+
+__all__ = ["SEARCH_RADIUS", "bind_neutral", "match_markers", "rebind_markers", "with_markers"]

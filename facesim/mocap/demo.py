@@ -452,9 +452,11 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     from facesim.fem.equilibrium import FaceSimulator
     from facesim.inverse.gauss_newton import FitOptions
     from facesim.inverse.plots import plot_track
-    from facesim.inverse.tracking import TrackOptions, bind_neutral, match_markers, stabilise, track
+    from facesim.inverse.tracking import TrackOptions, track
     from facesim.kinematics.condyle import SlidingCondyleJaw
+    from facesim.mocap.binding import bind_neutral, match_markers
     from facesim.mocap.io import frame_mask, read_markers
+    from facesim.mocap.stabilise import stabilise
     from facesim.model import load_model
 
     say = say or (lambda *_: None)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facesim.errors import FacesimError
-from facesim.mocap.binding import rebind_markers
+from facesim.mocap.binding import match_markers, rebind_markers
 from facesim.model import load_model
 
 MESHES = Path(__file__).resolve().parents[2] / "meshes"
@@ -62,3 +62,8 @@ def test_bad_neutral_frames_give_one_line_errors(coarse):
         rebind_markers(coarse, P)
     with pytest.raises(FacesimError, match="expected"):
         rebind_markers(coarse, P[:-1])
+
+
+def test_match_markers_reports_unmatched_names():
+    index, extra, missing = match_markers(["chin", "Mouth_L", "nose"], ["CHIN", "mouth_l", "ear"])
+    assert list(index) == [0, 1, -1] and extra == ["ear"] and missing == ["nose"]

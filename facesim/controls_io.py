@@ -1,0 +1,122 @@
+"""The controls files of a sequence: activations and jaw per frame, as ``facesim simulate`` reads them
+and ``facesim solve-mocap`` writes them.
+
+* activations: header ``frame,<muscle>,...`` (any subset of the model's muscles, in any order; the
+  others stay 0), one row per frame, values in [0, 1] (:func:`read_activations_csv`);
+* jaw: ``frame,rx,ry,rz,tx,ty,tz`` or ``frame,opening`` for the rigid jaw, ``frame,<parameter>,...``
+  for every other jaw model (:func:`read_jaw_csv`).
+
+Every error is one line naming the file, the line and the column.
+"""
+
+from __future__ import annotations
+
+import difflib
+
+import numpy as np
+
+from facesim._csv import frame_numbers, numbers, read_table
+from facesim.errors import FacesimError
+from facesim.model import FaceModel
+
+JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
+JAW_OPENING = ("opening",)
+
+
+def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
+    """Read an activations CSV: header ``frame,<muscle>,...``, one row per frame, values in [0, 1].
+
+    Columns may name any subset of ``muscle_names`` in any order; muscles without a column stay
+    at 0. Returns ``frames (F,) int64`` (increasing) and ``A (F, n_muscles) float64`` in the order
+    of ``muscle_names``. Raises a one-line :class:`FacesimError` naming the file, line and
+    column for a missing or empty file, a missing ``frame`` column, an unknown muscle (with the
+    closest names), a duplicate column, a non-numeric value or one outside [0, 1].
+    """
+    muscle_names = tuple(muscle_names)
+    table = read_table(path, "activations file", example="frame," + ",".join(muscle_names[:2]) + ",...")
+    columns = table.header[1:]
+    for c in columns:
+        if c not in muscle_names:
+            close = difflib.get_close_matches(c, muscle_names, n=3, cutoff=0.5)
+            hint = f"closest: {', '.join(close)}" if close else \
+                f"the model's muscles are {', '.join(muscle_names[:6])}{', ...' if len(muscle_names) > 6 else ''}"
+            raise FacesimError(f"{table.path}: line {table.header_line}, column {c!r}: unknown muscle; {hint}")
+    values = numbers(table, columns)
+    bad = np.argwhere((values < 0.0) | (values > 1.0))
+    if len(bad):
+        i, j = bad[0]
+        raise FacesimError(f"{table.where(i, columns[j])}: activation {table.rows[i][j + 1]} outside [0, 1]")
+    frames = frame_numbers(table)
+    A = np.zeros((len(frames), len(muscle_names)))
+    A[:, [muscle_names.index(c) for c in columns]] = values
+    return frames, A
+
+
+def read_jaw_csv(path, model: FaceModel, jaw_model="rigid") -> tuple[np.ndarray, np.ndarray]:
+    """Read a jaw CSV and return ``frames (F,) int64`` and the jaw controls of ``jaw_model`` (a
+    :class:`~facesim.kinematics.jaw_models.JawModel` or its name): ``(F, 4, 4)`` mandible
+    transforms for the rigid jaw, ``(F, n_params)`` parameters for every other jaw model.
+
+    Rigid jaw, two forms: ``frame,rx,ry,rz,tx,ty,tz`` -- a rotation vector (rad) about the condyle
+    midpoint ``model.jaw.midpoint``, then a translation (mm); or ``frame,opening`` -- a rotation (rad,
+    positive opens the mouth) about the intercondylar axis. Both through
+    :meth:`facesim.kinematics.jaw_models.RigidJaw.from_rotation`.
+    Any other jaw model: ``frame,<param_names>`` -- for the sliding-condyle jaw
+    ``frame,opening,right_slide,left_slide`` (rad, mm, mm; Sifakis 2005 section 8), for a Posselt rig
+    ``frame,sx,sy,sz``, for an NLPCA rig ``frame,d1,d2,d3`` -- each value within the model's bounds.
+    Columns are matched by name, in any order.
+    """
+    from facesim.kinematics.jaw_models import RigidJaw, make_jaw_model
+
+    jaw_model = make_jaw_model(model, jaw_model)
+    if jaw_model.n_params:
+        return _read_parameter_csv(path, jaw_model)
+    table = read_table(path, "jaw file", example="frame,rx,ry,rz,tx,ty,tz' or 'frame,opening")
+    columns = set(table.header[1:])
+    if columns == set(JAW_OPENING):
+        opening = numbers(table, JAW_OPENING)[:, 0]
+        T = np.array([RigidJaw.from_rotation(model, float(v)) for v in opening])
+    elif columns == set(JAW_FULL):
+        q = numbers(table, JAW_FULL)
+        T = np.array([RigidJaw.from_rotation(model, rotvec=r[:3], translation=r[3:]) for r in q])
+    else:
+        unknown = sorted(columns - set(JAW_FULL) - set(JAW_OPENING))
+        what = f"unknown column {unknown[0]!r}" if unknown else f"columns {','.join(table.header[1:])}"
+        raise FacesimError(f"{table.path}: line {table.header_line}: {what}; expected 'frame,rx,ry,rz,tx,ty,tz' "
+                           "(rotation vector in rad about the condyle midpoint, translation in mm) or 'frame,opening' "
+                           "(rad)")
+    return frame_numbers(table), T.reshape(-1, 4, 4)
+
+
+def _read_parameter_csv(path, jaw) -> tuple[np.ndarray, np.ndarray]:
+    """``frame,<jaw.param_names>``: the parameters of a jaw model within its bounds."""
+    names = tuple(jaw.param_names)
+    table = read_table(path, "jaw file", example="frame," + ",".join(names))
+    if set(table.header[1:]) != set(names):
+        raise FacesimError(f"{table.path}: line {table.header_line}: columns {','.join(table.header[1:])}; expected "
+                           f"'frame,{','.join(names)}' for the {jaw.name} jaw")
+    q = numbers(table, names)
+    lo, hi = np.asarray(jaw.bounds, dtype=np.float64).T
+    tol = 1e-9 + 1e-6 * (hi - lo)
+    bad = np.argwhere((q < lo - tol) | (q > hi + tol))
+    if len(bad):
+        r, c = bad[0]
+        raise FacesimError(f"{table.path}: data row {r + 1}, column {names[c]!r}: {q[r, c]:g} outside "
+                           f"[{lo[c]:g}, {hi[c]:g}]")
+    return frame_numbers(table), np.ascontiguousarray(q)
+
+
+def check_same_frames(path, frames, reference_path, reference_frames) -> None:
+    """One-line error unless ``frames`` (of ``path``) equal ``reference_frames`` (of ``reference_path``)."""
+    frames, ref = np.asarray(frames), np.asarray(reference_frames)
+    if len(frames) != len(ref):
+        raise FacesimError(f"{path}: {len(frames)} frames, but {reference_path} has {len(ref)}; expected the "
+                           "same frame column")
+    diff = np.flatnonzero(frames != ref)
+    if len(diff):
+        i = diff[0]
+        raise FacesimError(f"{path}: data row {i + 1} is frame {frames[i]}, but {reference_path} has frame {ref[i]} "
+                           "there; expected the same frame column")
+
+
+__all__ = ["JAW_FULL", "JAW_OPENING", "check_same_frames", "read_activations_csv", "read_jaw_csv"]

@@ -1,0 +1,88 @@
+"""Append-only CSV frame logs: the per-frame files of a long run, written so a crash never loses a frame.
+
+A frame log is a CSV file with a header line and one line per finished frame, the frame number
+first. :class:`FrameLog` writes it: the file is first rewritten atomically with the header and the
+lines kept from an earlier run, then every :meth:`FrameLog.add` appends one complete line, flushed
+and ``fsync``-ed, so the file on disk always ends with a whole frame (or a line cut by a crash,
+which the reader drops). :func:`read_lines` resumes: the complete, well-formed lines of an earlier
+log by frame number.
+
+``facesim simulate`` writes ``frames.csv`` and ``markers.csv`` this way (:mod:`facesim.simulate`),
+``facesim solve-mocap`` its four logs ``activations.csv``, ``jaw.csv``, ``residuals.csv`` and
+``frames.csv`` (:mod:`facesim.inverse.tracking`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+from facesim._files import atomic_write
+
+
+def csv_line(values) -> str:
+    """One CSV line (with its newline) of ``values``, quoted where needed."""
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow(values)
+    return buf.getvalue()
+
+
+def read_lines(path, header: str, n_fields: int | None = None) -> dict[int, str]:
+    """The complete, well-formed lines of the log at ``path`` by frame number (the first field).
+
+    ``header`` : the header line the log must start with (with its newline); a missing or
+    unreadable file, or one with another header, holds no lines. ``n_fields`` : the fields of a
+    line (default: those of ``header``). Lines without a newline (cut by a crash), with another
+    number of fields or without an integer frame number are left out; a frame written twice
+    keeps its last line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return {}
+    lines = text.splitlines(keepends=True)
+    if not lines or lines[0] != header:
+        return {}
+    width = len(next(csv.reader([header]))) if n_fields is None else n_fields
+    found = {}
+    for line in lines[1:]:
+        fields = next(csv.reader([line]), [])
+        if not line.endswith("\n") or len(fields) != width:
+            continue
+        try:
+            found[int(fields[0])] = line
+        except ValueError:
+            continue
+    return found
+
+
+class FrameLog:
+    """An append-only log at ``path``: rewritten (atomically) as ``header`` and ``lines``, then kept
+    open; each :meth:`add` writes one complete line and flushes it to disk. A context manager."""
+
+    def __init__(self, path, header: str, lines=()):
+        self.path = Path(path)
+        text = header + "".join(lines)
+        atomic_write(self.path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+        self.file = open(self.path, "a", encoding="utf-8")  # noqa: SIM115  (kept open across frames)
+
+    def add(self, line: str) -> None:
+        """Append ``line`` (one complete line, with its newline) and sync it to disk."""
+        self.file.write(line)
+        self.file.flush()
+        os.fsync(self.file.fileno())
+
+    def close(self) -> None:
+        self.file.close()
+
+    def __enter__(self) -> FrameLog:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+__all__ = ["FrameLog", "csv_line", "read_lines"]
