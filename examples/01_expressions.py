@@ -51,7 +51,7 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=480, help="picture size in pixels (square)")
     ap.add_argument("--only", nargs="*", help="solve only these expressions")
     args = ap.parse_args(argv)
-    from facesim.viz.render import render_image, tile_images, _save_png
+    from facesim.viz.render import render_image, save_png as _save_png, tile_images
 
     model = load_model(args.model)
     sim = FaceSimulator(model)

@@ -331,11 +331,11 @@ def cmd_solve_mocap(args) -> int:
     from facesim.fem.equilibrium import EquilibriumOptions
     from facesim.fem.newton import NewtonOptions
     from facesim.inverse.gauss_newton import FitOptions
-    from facesim.inverse.plots import plot_track
     from facesim.inverse.parallel import SimulatorSpec, dask_client
     from facesim.inverse.tracking import TrackOptions, track
     from facesim.mocap.binding import bind_neutral, match_markers
     from facesim.mocap.io import frame_mask, read_markers
+    from facesim.viz.plots import plot_track
 
     model = _load(args.model)
     data = read_markers(args.markers, units=args.units)
@@ -370,7 +370,7 @@ def cmd_solve_mocap(args) -> int:
                   client=client, neutral=neutral)
     plot_track(args.output)
     if args.render:
-        from facesim.inverse.render import render_solve
+        from facesim.viz.solve import render_solve
 
         sim = spec.build() if neutral is None else bind_neutral(spec.build(), neutral, args.head)[0]   # as solved
         video = render_solve(sim, args.output, frames, P, head=args.head, head_smoothing=args.head_smoothing,

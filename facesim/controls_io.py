@@ -4,7 +4,9 @@ and ``facesim solve-mocap`` writes them.
 * activations: header ``frame,<muscle>,...`` (any subset of the model's muscles, in any order; the
   others stay 0), one row per frame, values in [0, 1] (:func:`read_activations_csv`);
 * jaw: ``frame,rx,ry,rz,tx,ty,tz`` or ``frame,opening`` for the rigid jaw, ``frame,<parameter>,...``
-  for every other jaw model (:func:`read_jaw_csv`).
+  for every other jaw model (:func:`read_jaw_csv`);
+* a solve-mocap folder's ``activations.csv`` and ``jaw.csv`` read back as the controls of each
+  frame (:func:`read_solution`).
 
 Every error is one line naming the file, the line and the column.
 """
@@ -12,11 +14,14 @@ Every error is one line naming the file, the line and the column.
 from __future__ import annotations
 
 import difflib
+from pathlib import Path
 
 import numpy as np
 
 from facesim._csv import frame_numbers, numbers, read_table
+from facesim.controls import Controls
 from facesim.errors import FacesimError
+from facesim.framelog import read_log
 from facesim.model import FaceModel
 
 JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
@@ -119,4 +124,20 @@ def check_same_frames(path, frames, reference_path, reference_frames) -> None:
                            "there; expected the same frame column")
 
 
-__all__ = ["JAW_FULL", "JAW_OPENING", "check_same_frames", "read_activations_csv", "read_jaw_csv"]
+def read_solution(out_dir, model) -> tuple[np.ndarray, list[Controls]]:
+    """Frames ``(k,)`` solved in both ``OUT/activations.csv`` and ``OUT/jaw.csv`` and their controls
+    (activations in the model's muscle order, jaw parameters as written; None without any)."""
+    out = Path(out_dir)
+    header, A = read_log(out / "activations.csv")
+    if header[1:] != list(model.muscles.names):
+        raise FacesimError(f"{out / 'activations.csv'}: its muscles are not the model's; expected the run made with "
+                           "this model")
+    _, J = read_log(out / "jaw.csv")
+    jaw = {int(r[0]): r[1:] for r in J}
+    frames = [int(f) for f in A[:, 0] if int(f) in jaw]
+    rows = {int(r[0]): r[1:] for r in A}
+    controls = [Controls(np.clip(rows[f], 0.0, 1.0), jaw=jaw[f] if len(jaw[f]) else None) for f in frames]
+    return np.array(frames, dtype=np.int64), controls
+
+
+__all__ = ["JAW_FULL", "JAW_OPENING", "check_same_frames", "read_activations_csv", "read_jaw_csv", "read_solution"]

@@ -5,7 +5,7 @@ first. :class:`FrameLog` writes it: the file is first rewritten atomically with 
 lines kept from an earlier run, then every :meth:`FrameLog.add` appends one complete line, flushed
 and ``fsync``-ed, so the file on disk always ends with a whole frame (or a line cut by a crash,
 which the reader drops). :func:`read_lines` resumes: the complete, well-formed lines of an earlier
-log by frame number.
+log by frame number. :func:`read_log` reads a finished log's numbers.
 
 ``facesim simulate`` writes ``frames.csv`` and ``markers.csv`` this way (:mod:`facesim.simulate`),
 ``facesim solve-mocap`` its four logs ``activations.csv``, ``jaw.csv``, ``residuals.csv`` and
@@ -19,7 +19,10 @@ import io
 import os
 from pathlib import Path
 
+import numpy as np
+
 from facesim._files import atomic_write
+from facesim.errors import FacesimError
 
 
 def csv_line(values) -> str:
@@ -85,4 +88,22 @@ class FrameLog:
         self.close()
 
 
-__all__ = ["FrameLog", "csv_line", "read_lines"]
+def read_log(path) -> tuple[list[str], np.ndarray]:
+    """Header and rows ``(k, columns) float64`` of a finished numeric frame log (``frame`` first),
+    e.g. the ``activations.csv`` a solve-mocap run wrote. One-line :class:`FacesimError` for a
+    missing or empty file or a field that is not a number."""
+    path = Path(path)
+    if not path.is_file():
+        raise FacesimError(f"{path}: no such file; expected the results of a solve-mocap run")
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = [r for r in csv.reader(fh) if r]
+    if not rows:
+        raise FacesimError(f"{path}: empty file; expected a header line")
+    try:
+        data = np.array([[float(v) for v in r] for r in rows[1:]], dtype=np.float64)
+    except ValueError:
+        raise FacesimError(f"{path}: expected numbers after the header line") from None
+    return rows[0], data.reshape(-1, len(rows[0]))
+
+
+__all__ = ["FrameLog", "csv_line", "read_lines", "read_log"]

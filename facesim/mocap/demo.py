@@ -275,7 +275,7 @@ def load_truth(clip) -> dict:
 
 # ------------------------------------------------------------------ scoring a solve
 def _groups(names) -> dict[str, list[int]]:
-    from facesim.inverse.plots import GROUPS
+    from facesim.viz.plots import GROUPS
 
     return {g: [i for i, n in enumerate(names) if any(n.startswith(s) for s in stems)] for g, stems in GROUPS.items()}
 
@@ -293,7 +293,7 @@ def score_solve(truth: dict, out_dir, model: FaceModel | None = None) -> dict:
     frame, ``groups`` mean per muscle group, ``per_muscle`` mean, ``visible`` and ``not_visible``
     names, ``threshold_mm``); ``jaw`` (opening error in degrees and slide errors in mm, mean and
     max); ``outliers`` (planted, reported, of which planted, false alarms)."""
-    from facesim.inverse.render import read_log
+    from facesim.framelog import read_log
 
     out = Path(out_dir)
     header, A = read_log(out / "activations.csv")
@@ -397,7 +397,7 @@ def plot_recovery(truth: dict, out_dir) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from facesim.inverse.render import read_log
+    from facesim.framelog import read_log
 
     out = Path(out_dir)
     _, A = read_log(out / "activations.csv")
@@ -451,13 +451,13 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     """
     from facesim.fem.equilibrium import FaceSimulator
     from facesim.inverse.gauss_newton import FitOptions
-    from facesim.inverse.plots import plot_track
     from facesim.inverse.tracking import TrackOptions, track
     from facesim.kinematics.condyle import SlidingCondyleJaw
     from facesim.mocap.binding import bind_neutral, match_markers
     from facesim.mocap.io import frame_mask, read_markers
     from facesim.mocap.stabilise import stabilise
     from facesim.model import load_model
+    from facesim.viz.plots import plot_track
 
     say = say or (lambda *_: None)
     t0 = time.perf_counter()
@@ -496,7 +496,7 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     out = Path(out_dir)
     outputs.append(atomic_write(out / "recovery.json", lambda tmp: tmp.write_text(json.dumps(score, indent=2) + "\n")))
     if render:
-        from facesim.inverse.render import render_solve
+        from facesim.viz.solve import render_solve
 
         outputs.append(render_solve(bound, out_dir, frame_numbers, P, head="none", fps=float(data.rate or truth["fps"]),
                                     progress=progress))

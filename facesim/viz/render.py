@@ -68,7 +68,7 @@ KNOWN_MUSCLES = (
 _SIDE_SUFFIX = re.compile(r"[_\-. ](l|r|left|right)$", re.IGNORECASE)
 
 
-def _pyvista():
+def pyvista_offscreen():
     """pyvista, set up for off-screen rendering; imported on first use (it takes about a second)."""
     if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") and ctypes.util.find_library("EGL"):
         # Without an X server VTK first tries X (printing a warning), then EGL: go to EGL directly.
@@ -116,10 +116,10 @@ def _check(view: str, show) -> tuple[str, ...]:
     return show
 
 
-def _polydata(vertices: np.ndarray, faces: np.ndarray):
+def polydata(vertices: np.ndarray, faces: np.ndarray):
     """pyvista.PolyData of a triangle surface ``vertices (k, 3)``, ``faces (l, 3)``."""
     cells = np.hstack([np.full((len(faces), 1), 3, dtype=np.int64), faces.astype(np.int64)])
-    return _pyvista().PolyData(np.asarray(vertices, dtype=np.float64), cells.ravel())
+    return pyvista_offscreen().PolyData(np.asarray(vertices, dtype=np.float64), cells.ravel())
 
 
 def bone_motion(model: FaceModel, x) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -156,7 +156,7 @@ def _add_surfaces(plotter, model: FaceModel, x, show) -> None:
             continue
         for s in surfaces:
             A, t = motion[s.bone]
-            mesh = _polydata(s.vertices @ A.T + t, s.faces)
+            mesh = polydata(s.vertices @ A.T + t, s.faces)
             plotter.add_mesh(mesh, color=colour(s), smooth_shading=True, specular=0.25)
 
 
@@ -164,7 +164,7 @@ def _add_muscles(plotter, model: FaceModel, points, threshold: float) -> list[tu
     """Draw each muscle's tets with fraction > threshold; return the legend entries."""
     mus = model.muscles
     colours = muscle_colours(mus.names)
-    pv = _pyvista()
+    pv = pyvista_offscreen()
     grid = pv.UnstructuredGrid({pv.CellType.TETRA: model.tets.astype(np.int64)}, points)
     legend = {}
     for m, name in enumerate(mus.names):
@@ -184,7 +184,7 @@ def _add_markers(plotter, model: FaceModel, x) -> None:
     lo, hi = model.bounding_box()
     radius = 0.008 * float(np.linalg.norm(hi - lo))
     p = model.marker_positions(x)
-    pv = _pyvista()
+    pv = pyvista_offscreen()
     sphere = pv.Sphere(radius=radius, theta_resolution=12, phi_resolution=12)
     for mask, colour in ((~model.markers.head, MARKER_COLOUR), (model.markers.head, HEAD_MARKER_COLOUR)):
         if mask.any():
@@ -192,7 +192,7 @@ def _add_markers(plotter, model: FaceModel, x) -> None:
             plotter.add_mesh(glyphs, color=colour, smooth_shading=True)
 
 
-def _set_camera(plotter, points: np.ndarray, view: str, fit_drawn: bool = True) -> None:
+def set_camera(plotter, points: np.ndarray, view: str, fit_drawn: bool = True) -> None:
     """Camera looking along ``view`` at the bounding box of ``points``. ``fit_drawn``: fit the
     distance to what is drawn (VTK's reset); otherwise to the box of ``points`` alone, so a
     sequence framed on the same points keeps one camera."""
@@ -227,7 +227,7 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
     if not 0.0 <= skin_opacity <= 1.0:
         raise FacesimError(f"skin_opacity: expected a value in [0, 1], got {skin_opacity}")
     width, height = (int(v) for v in size)
-    plotter = _pyvista().Plotter(off_screen=True, window_size=(width, height))
+    plotter = pyvista_offscreen().Plotter(off_screen=True, window_size=(width, height))
     try:
         plotter.set_background(BACKGROUND[0], top=BACKGROUND[1])
         entries = []
@@ -237,28 +237,28 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
         if "markers" in show:
             _add_markers(plotter, model, x)
         for vertices, faces in extra:   # external colliders (world frame)
-            plotter.add_mesh(_polydata(np.asarray(vertices, dtype=np.float64), np.asarray(faces)), color=EXTRA_COLOUR,
+            plotter.add_mesh(polydata(np.asarray(vertices, dtype=np.float64), np.asarray(faces)), color=EXTRA_COLOUR,
                              smooth_shading=True, specular=0.4)
         if "skin" in show and len(model.skin):
             # No depth peeling: it renders blank on Mesa's llvmpipe through EGL. VTK draws
             # translucent actors after the opaque ones, which is enough for one skin layer.
-            plotter.add_mesh(_polydata(points, model.skin), color=SKIN_COLOUR, opacity=skin_opacity,
+            plotter.add_mesh(polydata(points, model.skin), color=SKIN_COLOUR, opacity=skin_opacity,
                              smooth_shading=True, specular=0.1)
         entries = entries if legend else []
-        panel = _legend_layout(entries, (width, height))[2]
+        panel = legend_layout(entries, (width, height))[2]
         if panel:
             plotter.window_size = (width - panel, height)
         if frame_on is None:
-            _set_camera(plotter, points, view)
+            set_camera(plotter, points, view)
         else:   # a camera that does not move between the frames of a sequence
-            _set_camera(plotter, np.asarray(frame_on, dtype=np.float64), view, fit_drawn=False)
+            set_camera(plotter, np.asarray(frame_on, dtype=np.float64), view, fit_drawn=False)
         image = plotter.screenshot(None, return_img=True)
     finally:
         plotter.close()
-    return _annotate(np.ascontiguousarray(image[..., :3]), entries, title, (width, height))
+    return annotate(np.ascontiguousarray(image[..., :3]), entries, title, (width, height))
 
 
-def _legend_layout(entries, size):
+def legend_layout(entries, size):
     """Font, line height and width of the legend panel drawn right of the picture (0 without legend)."""
     from PIL import ImageDraw, ImageFont, Image
 
@@ -278,7 +278,7 @@ def _legend_layout(entries, size):
     return font, px, int(4 * (px // 2) + px + text_w)
 
 
-def _annotate(image: np.ndarray, entries, title: str | None, size) -> np.ndarray:
+def annotate(image: np.ndarray, entries, title: str | None, size) -> np.ndarray:
     """Add the muscle legend as a panel right of the rendered view, and the caption (lower left).
 
     ``image`` is the 3D view, narrower than ``size`` by the legend panel; the result has ``size``.
@@ -290,7 +290,7 @@ def _annotate(image: np.ndarray, entries, title: str | None, size) -> np.ndarray
         return image
     from PIL import Image, ImageDraw, ImageFont
 
-    font, px, panel = _legend_layout(entries, size)
+    font, px, panel = legend_layout(entries, size)
     canvas = Image.new("RGB", (w, h), BACKGROUND[0])
     canvas.paste(Image.fromarray(image), (0, 0))
     draw = ImageDraw.Draw(canvas)
@@ -309,7 +309,7 @@ def _annotate(image: np.ndarray, entries, title: str | None, size) -> np.ndarray
     return np.asarray(canvas)
 
 
-def _save_png(image: np.ndarray, path) -> Path:
+def save_png(image: np.ndarray, path) -> Path:
     from PIL import Image
 
     path = require_suffix(path, (".png",), "a picture file name")
@@ -341,7 +341,7 @@ def render_model(model: FaceModel, path, view: str = "front", show=DEFAULT_SHOW,
     extra : ``(vertices (nv, 3), faces (nf, 3))`` surfaces to draw as well, in world mm (external
         colliders, e.g. ``Collider.surface()``).
     """
-    return _save_png(render_image(model, view, show, skin_opacity, size, x, legend, title, muscle_threshold,
+    return save_png(render_image(model, view, show, skin_opacity, size, x, legend, title, muscle_threshold,
                                   frame_on, extra), path)
 
 
@@ -383,4 +383,4 @@ def render_contact_sheet(model: FaceModel, path, views=("front", "side", "three_
     images = [render_image(model, v, show, skin_opacity, tile_size, x, legend=(k == 0),
                            title=v.replace("_", " "), muscle_threshold=muscle_threshold)
               for k, v in enumerate(tqdm(views, desc="rendering views", unit="view", disable=not progress))]
-    return _save_png(tile_images(images, columns), path)
+    return save_png(tile_images(images, columns), path)

@@ -19,7 +19,8 @@ GROUPS = {
 
 
 def plot_track(out_dir) -> list[Path]:
-    """``activations.png`` and ``residuals.png`` from the CSV files a :func:`track` run wrote."""
+    """``activations.png`` and ``residuals.png`` from the CSV files a
+    :func:`~facesim.inverse.tracking.track` run wrote."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -1,7 +1,8 @@
 """Side-by-side video of a solved capture: the captured markers, and the simulated face that reproduces them.
 
 :func:`render_solve` re-simulates the frames a :func:`~facesim.inverse.tracking.track` run solved
-(the controls in ``OUT/activations.csv`` and ``OUT/jaw.csv``, equilibria warm-started frame to
+(the controls in ``OUT/activations.csv`` and ``OUT/jaw.csv``, read by
+:func:`facesim.controls_io.read_solution`; equilibria warm-started frame to
 frame) and renders each frame as two panels seen by the same fixed camera:
 
 * left, *capture*: the captured markers, stabilised into the model's head frame (orange; head
@@ -20,62 +21,31 @@ animated GIF ``video.gif`` when imageio-ffmpeg is not installed).
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import numpy as np
 
-from facesim.controls import Controls
+from facesim.controls_io import read_solution
 from facesim.errors import FacesimError
+from facesim.mocap.stabilise import stabilise
+from facesim.viz.render import (BACKGROUND, HEAD_MARKER_COLOUR, MARKER_COLOUR, SKIN_COLOUR, VIEWS, annotate,
+                                legend_layout, polydata, pyvista_offscreen, save_png, set_camera)
+from facesim.viz.video import write_video
 
 CAPTURED_COLOUR = "#ff9a1f"
 OUTLIER_COLOUR = "#ff2d2d"
 GHOST_OPACITY = 0.12
 
 
-def read_log(path) -> tuple[list[str], np.ndarray]:
-    """Header and rows ``(k, columns) float64`` of a CSV file that ``track`` writes (``frame`` first)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FacesimError(f"{path}: no such file; expected the results of a solve-mocap run")
-    with open(path, newline="", encoding="utf-8") as fh:
-        rows = [r for r in csv.reader(fh) if r]
-    if not rows:
-        raise FacesimError(f"{path}: empty file; expected a header line")
-    try:
-        data = np.array([[float(v) for v in r] for r in rows[1:]], dtype=np.float64)
-    except ValueError:
-        raise FacesimError(f"{path}: expected numbers after the header line") from None
-    return rows[0], data.reshape(-1, len(rows[0]))
-
-
-def read_solution(out_dir, model) -> tuple[np.ndarray, list[Controls]]:
-    """Frames ``(k,)`` solved in both ``OUT/activations.csv`` and ``OUT/jaw.csv`` and their controls
-    (activations in the model's muscle order, jaw parameters as written; None without any)."""
-    out = Path(out_dir)
-    header, A = read_log(out / "activations.csv")
-    if header[1:] != list(model.muscles.names):
-        raise FacesimError(f"{out / 'activations.csv'}: its muscles are not the model's; expected the run made with "
-                           "this model")
-    _, J = read_log(out / "jaw.csv")
-    jaw = {int(r[0]): r[1:] for r in J}
-    frames = [int(f) for f in A[:, 0] if int(f) in jaw]
-    rows = {int(r[0]): r[1:] for r in A}
-    controls = [Controls(np.clip(rows[f], 0.0, 1.0), jaw=jaw[f] if len(jaw[f]) else None) for f in frames]
-    return np.array(frames, dtype=np.int64), controls
-
-
 class _Panel:
     """One off-screen plotter reused for every frame of a sequence (fixed camera on the rest face)."""
 
     def __init__(self, model, size, view: str, entries):
-        from facesim.viz.render import BACKGROUND, _legend_layout, _pyvista, _set_camera
-
-        self.pv = _pyvista()
+        self.pv = pyvista_offscreen()
         self.size = size
         self.entries = entries
-        width = size[0] - _legend_layout(entries, size)[2]
+        width = size[0] - legend_layout(entries, size)[2]
         self.plotter = self.pv.Plotter(off_screen=True, window_size=(width, size[1]))
         self.plotter.set_background(BACKGROUND[0], top=BACKGROUND[1])
         lo, hi = model.bounding_box()
@@ -84,7 +54,7 @@ class _Panel:
         # framed on the rest markers with a margin: the face fills the picture, and the camera stays put
         p = model.marker_positions() if model.n_markers >= 3 else model.X
         centre = 0.5 * (p.min(axis=0) + p.max(axis=0))
-        self.camera = (centre + 1.3 * (p - centre), view, _set_camera)
+        self.camera = (centre + 1.3 * (p - centre), view)
 
     def points(self, name: str, p, colour: str, scale: float = 1.0) -> None:
         p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
@@ -96,9 +66,7 @@ class _Panel:
         self.plotter.add_mesh(glyphs, color=colour, smooth_shading=True, name=name)
 
     def surface(self, name: str, vertices, faces, colour: str, opacity: float) -> None:
-        from facesim.viz.render import _polydata
-
-        self.plotter.add_mesh(_polydata(vertices, faces), color=colour, opacity=opacity, smooth_shading=True,
+        self.plotter.add_mesh(polydata(vertices, faces), color=colour, opacity=opacity, smooth_shading=True,
                               specular=0.1, name=name)
 
     def lines(self, name: str, a, b, colour: str) -> None:
@@ -112,15 +80,13 @@ class _Panel:
         self.plotter.add_mesh(poly, color=colour, line_width=2, name=name)
 
     def image(self, title: str) -> np.ndarray:
-        from facesim.viz.render import _annotate
-
         if self.camera is not None:   # set once, after the first actors exist (VTK clips to what is drawn)
-            points, view, set_camera = self.camera
+            points, view = self.camera
             set_camera(self.plotter, points, view, fit_drawn=False)
             self.camera = None
         self.plotter.reset_camera_clipping_range()
         shot = self.plotter.screenshot(None, return_img=True)
-        return _annotate(np.ascontiguousarray(shot[..., :3]), self.entries, title, self.size)
+        return annotate(np.ascontiguousarray(shot[..., :3]), self.entries, title, self.size)
 
     def close(self) -> None:
         self.plotter.close()
@@ -144,16 +110,6 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
     Returns the path of the video.
     """
     from tqdm import tqdm
-
-    from facesim.mocap.stabilise import stabilise
-    from facesim.viz.render import (
-        HEAD_MARKER_COLOUR,
-        MARKER_COLOUR,
-        SKIN_COLOUR,
-        VIEWS,
-        _save_png,
-    )
-    from facesim.viz.video import write_video
 
     if view not in VIEWS:
         raise FacesimError(f"view: unknown view {view!r}; expected one of {', '.join(VIEWS)}")
@@ -208,7 +164,7 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
             status = "" if eq.converged else ", not converged"
             image = np.hstack([left.image(f"capture  frame {k}"),
                                right.image(f"simulation  RMS {rms:.2f} mm{status}")])
-            pngs.append(_save_png(image, out / "render" / f"frame_{k:05d}.png"))
+            pngs.append(save_png(image, out / "render" / f"frame_{k:05d}.png"))
     finally:
         left.close()
         right.close()
@@ -216,4 +172,4 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
     return path
 
 
-__all__ = ["read_log", "read_solution", "render_solve"]
+__all__ = ["render_solve"]
