@@ -417,7 +417,7 @@ def _warn_unconverged(s: dict, log: Path) -> None:
 
 
 def cmd_demo(args) -> int:
-    from facesim.mocap.demo import DEMO_CLIP, format_score, run_demo
+    from facesim.demo import DEMO_CLIP, format_score, run_demo
 
     path = default_model_path()
     if not path.is_file():
@@ -486,12 +486,12 @@ def build_parser() -> argparse.ArgumentParser:
                     "found. Writes OUT/ as solve-mocap does, plus recovery.png (true and solved curves) and "
                     "recovery.json. A few minutes for the whole clip on 2 cores.",
         epilog="Pictures of a model: 'facesim model render M.npz -o front.png' (--sheet for several views). "
-               "Regenerate the clip: 'python -m facesim.mocap.demo --make'.")
+               "Regenerate the clip: 'python -m facesim.demo --make'.")
     demo.add_argument("-o", "--output", default="facesim_demo", metavar="OUT_DIR",
                       help="folder for the results (default: %(default)s)")
     demo.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames of the clip (inclusive), e.g. 5:15")
     demo.add_argument("--clip", metavar="F.c3d",
-                      help="another clip made by 'python -m facesim.mocap.demo --make' (its truth F_truth.npz beside "
+                      help="another clip made by 'python -m facesim.demo --make' (its truth F_truth.npz beside "
                            "it; default: the shipped meshes/demo_clip.c3d)")
     demo.add_argument("--render", action="store_true",
                       help="also render the solve side by side with the capture into OUT/render/ (see solve-mocap "

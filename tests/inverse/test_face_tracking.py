@@ -11,7 +11,7 @@ from facesim.fem.equilibrium import FaceSimulator
 from facesim.inverse import ControlSpace, FitOptions, fit_frame
 from facesim.inverse.tracking import TrackOptions, fit_markers
 from facesim.kinematics.condyle import SlidingCondyleJaw
-from facesim.mocap.demo import VISIBLE_MM, muscle_sensitivity
+from facesim.demo import VISIBLE_MM, muscle_sensitivity
 from facesim.model import load_model
 from facesim.session import activation_vector
 

@@ -17,7 +17,7 @@ muscles the markers can see, jaw error, and how many planted outliers were repor
 
 Regenerate the shipped clip (on ``meshes/face_medium.npz``; prints how long it took)::
 
-    python -m facesim.mocap.demo --make [--model meshes/face_medium.npz] [--out meshes/]
+    python -m facesim.demo --make [--model meshes/face_medium.npz] [--out meshes/]
 """
 
 from __future__ import annotations
@@ -266,7 +266,7 @@ def load_truth(clip) -> dict:
     path = truth_path(clip)
     if not path.is_file():
         raise FacesimError(f"{path}: no truth file for the clip {clip}; make the clip with "
-                           "'python -m facesim.mocap.demo --make'")
+                           "'python -m facesim.demo --make'")
     with np.load(path, allow_pickle=False) as z:
         truth = {k: z[k] for k in z.files}
     truth["meta"] = json.loads(str(truth["meta"]))
@@ -463,7 +463,7 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     t0 = time.perf_counter()
     clip = Path(clip or DEMO_CLIP)
     if not clip.is_file():
-        raise FacesimError(f"{clip}: no such clip; make it with 'python -m facesim.mocap.demo --make'")
+        raise FacesimError(f"{clip}: no such clip; make it with 'python -m facesim.demo --make'")
     truth = load_truth(clip)
     if not isinstance(model, FaceModel):
         model = load_model(model or SOLVE_MODEL)
@@ -505,8 +505,8 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
 
 # ------------------------------------------------------------------ command line
 def main(argv=None) -> int:
-    """``python -m facesim.mocap.demo --make``: regenerate the demo clip (see the module doc)."""
-    ap = argparse.ArgumentParser(prog="python -m facesim.mocap.demo", description=__doc__,
+    """``python -m facesim.demo --make``: regenerate the demo clip (see the module doc)."""
+    ap = argparse.ArgumentParser(prog="python -m facesim.demo", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--make", action="store_true", help="make the demo clip")
     ap.add_argument("--model", default=str(FINE_MODEL), help="the fine model the clip is made on (default: %(default)s)")

@@ -1,5 +1,5 @@
 """The demo clip (generator, files, truth), scoring a solve against it, `facesim demo` on the shipped
-clip, and the side-by-side render of a solve."""
+clip (facesim.demo)."""
 
 import json
 
@@ -8,7 +8,7 @@ import pytest
 
 from facesim.cli import main
 from facesim.errors import FacesimError
-from facesim.mocap.demo import (
+from facesim.demo import (
     DEMO_CLIP,
     NOISE_MM,
     OUTLIER_MM,
@@ -63,7 +63,7 @@ def test_clip_files_read_back_with_noise_outliers_and_gaps(box_clip, box_model):
 
 
 def test_capture_is_the_clean_markers_spoiled_by_the_seed(box_clip, box_model):
-    from facesim.mocap.demo import spoil
+    from facesim.demo import spoil
 
     out, _ = box_clip
     truth = load_truth(out / "demo_clip.c3d")
@@ -108,7 +108,7 @@ def test_score_of_a_known_solve(box_clip, tmp_path):
 
 
 def test_run_demo_without_a_clip_says_how_to_make_it(box_model, tmp_path):
-    with pytest.raises(FacesimError, match="python -m facesim.mocap.demo --make"):
+    with pytest.raises(FacesimError, match="python -m facesim.demo --make"):
         run_demo(tmp_path / "out", box_model, tmp_path / "none.c3d")
     with pytest.raises(FacesimError, match="truth"):
         (tmp_path / "lonely.c3d").write_bytes(b"")
@@ -143,34 +143,8 @@ def test_demo_solves_the_shipped_clip(tmp_path, monkeypatch, capsys):
         assert (out / name).stat().st_size > 100
 
 
-def test_solve_mocap_render_writes_a_side_by_side_video(box_model, box_model_path, tmp_path, capsys):
-    from PIL import Image
-
-    from facesim.controls import Controls
-    from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
-    from facesim.fem.newton import NewtonOptions
-    from facesim.kinematics.condyle import SlidingCondyleJaw
-    from facesim.mocap.io import write_trc
-
-    sim = FaceSimulator(box_model, EquilibriumOptions(newton=NewtonOptions(linear_solver="direct")),
-                        jaw_model=SlidingCondyleJaw(box_model.jaw))
-    P = np.array([box_model.marker_positions(sim.equilibrium(Controls([0.3 * k, 0.2 * k], jaw=[0.04 * k, 0, 0])).x)
-                  for k in range(2)])
-    write_trc(tmp_path / "m.trc", np.arange(2), box_model.markers.names, P, fps=10.0)
-    out = tmp_path / "out"
-    assert main(["solve-mocap", "--model", str(box_model_path), "--markers", str(tmp_path / "m.trc"), "-o", str(out),
-                 "--head", "none", "--noise", "0.01", "--solver", "direct", "--render", "-q"]) == 0
-    assert "video: " in capsys.readouterr().out
-    videos = [p for p in (out / "render").iterdir() if p.name in ("video.mp4", "video.gif")]
-    assert len(videos) == 1 and videos[0].stat().st_size > 1000
-    frame = np.asarray(Image.open(out / "render" / "frame_00001.png").convert("RGB"))
-    assert frame.shape == (640, 1280, 3)
-    left, right = frame[:, :640], frame[:, 640:]
-    assert left.std() > 5 and right.std() > 5 and np.abs(left.astype(int) - right).mean() > 1
-
-
 def test_make_command_reports_a_bad_model_in_one_line(box_model_path, tmp_path, capsys):
-    from facesim.mocap.demo import main as demo_main
+    from facesim.demo import main as demo_main
 
     # the box model lacks the performance's muscles
     assert demo_main(["--make", "--model", str(box_model_path), "--out", str(tmp_path), "--frames", "3", "-q"]) == 2
