@@ -409,12 +409,12 @@ def sweep_distances(V, F, origin, h, dist2, tri):
 
 @njit(**JIT_FLAGS)
 def penalty_gradient(nodes, d, G, weights, stiffness, margin, g, want_grad):
-    """Energy ``sum_i w_i k/2 max(0, margin - d_i)^2`` (N mm for k in N/mm and unit weights) of
+    """Energy ``sum_i w_i k/2 max(0, margin_i - d_i)^2`` (``margin (k,)`` per node) (N mm for k in N/mm and unit weights) of
     the nodes ``nodes (k,)`` with signed distances ``d (k,)`` and gradients ``G (k, 3)``; if
     ``want_grad``, adds ``-w_i k pen_i G_i`` into ``g (n, 3)`` (N)."""
     E = 0.0
     for i in range(nodes.shape[0]):
-        pen = margin - d[i]
+        pen = margin[i] - d[i]
         if pen <= 0.0:
             continue
         kw = stiffness * weights[i]
@@ -444,7 +444,7 @@ def penalty_hessian(block, d, G, H, weights, stiffness, margin, project, data):
     negative eigenvalues (the curvature part of a convex collider) to zero."""
     B = np.empty((3, 3))
     for i in range(block.shape[0]):
-        pen = margin - d[i]
+        pen = margin[i] - d[i]
         if pen <= 0.0 or block[i] < 0:
             continue
         kw = stiffness * weights[i]

@@ -56,7 +56,8 @@ class ContactTerm(NodeTerm):
     colliders : sequence of :class:`~facesim.contact.Collider` or bare shapes (identity pose).
     stiffness : ``k`` > 0, N/mm per node (unit weights) or N/mm^3 (area ``weights``).
     margin : contact starts when a node is within ``margin`` mm of a collider's surface (0:
-        only penetrating nodes are pushed).
+        only penetrating nodes are pushed); a number, or ``(k,)`` per node (e.g. each node's own
+        rest clearance where the rest shape already touches a collider).
     weights : optional (k,) non-negative weights, typically :func:`node_areas` (mm^2).
 
     A :class:`~facesim.energy.NodeTerm`: ``x (n, 3)`` mm, ``a`` ignored, energies in mJ (N mm),
@@ -74,9 +75,11 @@ class ContactTerm(NodeTerm):
         self.stiffness = float(stiffness)
         if not (np.isfinite(self.stiffness) and self.stiffness > 0):
             raise FacesimError(f"contact stiffness: expected a positive number, got {stiffness}")
-        self.margin = float(margin)
-        if not np.isfinite(self.margin):
-            raise FacesimError(f"contact margin: expected a finite number (mm), got {margin}")
+        m = np.asarray(margin, dtype=np.float64)
+        if m.ndim > 1 or (m.ndim == 1 and m.shape != self.nodes.shape) or not np.all(np.isfinite(m)):
+            raise FacesimError(f"contact margin: expected a finite number or {len(self.nodes)} of them (mm), got "
+                               f"shape {m.shape}")
+        self.margin = np.ascontiguousarray(np.broadcast_to(m, self.nodes.shape))
         w = np.ones(len(self.nodes)) if weights is None else np.asarray(weights, dtype=np.float64)
         if w.shape != self.nodes.shape or not np.all(np.isfinite(w)) or np.any(w < 0):
             raise FacesimError(f"contact weights: expected {len(self.nodes)} non-negative numbers, got shape {w.shape}")
@@ -170,4 +173,4 @@ class ContactTerm(NodeTerm):
 
     def __repr__(self):
         return (f"ContactTerm({len(self.nodes)} nodes, {len(self.colliders)} colliders, stiffness={self.stiffness}, "
-                f"margin={self.margin})")
+                f"margin={float(self.margin.min(initial=0.0)):.3g}..{float(self.margin.max(initial=0.0)):.3g})")

@@ -47,9 +47,9 @@ class EquilibriumOptions:
     penetration, area-weighted):
 
     teeth_contact : the lip surfaces (``model.lip_upper``, ``lip_lower``) are kept out of the teeth
-        colliders, which move with their bones (the rest shape's own clearance, which the mesh
-        envelope can make slightly negative, is the zero of the penalty so the rest shape stays an
-        equilibrium);
+        colliders, which move with their bones (where a node's rest clearance is negative -- the
+        mesh envelope dipping into the teeth -- the penalty starts just below it, so the rest shape
+        stays an equilibrium);
     lip_contact : the upper and lower lips are kept out of each other
         (:func:`~facesim.contact.self_contact.lip_contact_term`);
     colliders : external colliders the skin cannot enter: :class:`~facesim.contact.Collider`, bare
@@ -206,9 +206,11 @@ class FaceSimulator:
                      for s in m.colliders if "teeth" in s.name]
             if not teeth or not len(nodes):
                 raise FacesimError("teeth contact: the model has no teeth colliders or no lip surfaces")
-            rest = min(float(sdf.distance(m.X[nodes]).min()) for sdf, _ in teeth)
-            # margin < 0: the penalty starts below the rest clearance
-            self._teeth = (nodes, teeth, node_areas(m.X, tris)[nodes], min(0.0, rest) - 0.05)
+            rest = np.min([sdf.distance(m.X[nodes]) for sdf, _ in teeth], axis=0)
+            # per node: where the rest mesh's lip envelope already dips into the teeth, the penalty
+            # starts 0.05 mm below that node's own rest clearance (the rest shape stays an
+            # equilibrium); everywhere else at the teeth surface
+            self._teeth = (nodes, teeth, node_areas(m.X, tris)[nodes], np.minimum(0.0, rest) - 0.05 * (rest < 0))
         return self._teeth
 
     def teeth_term(self, controls: Controls, force: bool = False):
