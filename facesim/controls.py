@@ -1,4 +1,4 @@
-"""Controls of the face: muscle activations, jaw pose and head pose (DESIGN.md).
+"""Controls of the face: muscle activations, jaw pose and head pose (docs/architecture.md).
 
 ``Controls(a, jaw, head)``: ``a (n_muscles,)`` activations in [0, 1]; ``jaw`` the jaw model's
 parameters (for :class:`~facesim.kinematics.jaw_models.RigidJaw`, a 4x4 rigid transform of the mandible relative to the skull);

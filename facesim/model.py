@@ -5,7 +5,7 @@ after construction: variants are made with :meth:`FaceModel.with_` (a validated 
 
 Units: millimetre (positions), megapascal (stiffness, muscle stress), radian (angles).
 Coordinates: x toward the subject's left, y up, z toward the nose; origin between the
-condyles (see ``shared/PHYSICS.md`` section 6).
+condyles (see ``docs/physics.md`` section 6).
 
 File format: one compressed ``.npz`` whose ``meta`` entry is a JSON string carrying
 ``format`` (``"facesim-model"``) and ``version`` (:data:`FORMAT_VERSION`); every array field

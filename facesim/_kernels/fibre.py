@@ -1,4 +1,4 @@
-"""Transversely isotropic muscle fibres, force affine in activation (PHYSICS.md section 2).
+"""Transversely isotropic muscle fibres, force affine in activation (docs/physics.md section 2).
 
 Along-fibre stretch lam = |F d|, s = lam - 1. Nominal fibre stress (MPa)
 

@@ -1,4 +1,4 @@
-"""Invertible Mooney-Rivlin flesh in principal stretches (PHYSICS.md section 1).
+"""Invertible Mooney-Rivlin flesh in principal stretches (docs/physics.md section 1).
 
     psi = c10 (I1_bar - 3) + c01 (I2_bar - 3) + psi_vol(J),
     psi_vol = (kappa/2) (ln J)^2  (``vol == 0``)  or  (kappa/2) (J - 1)^2  (``vol == 1``)
@@ -252,7 +252,7 @@ def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
         P = 2 c10 J^(-2/3) F + 2 c01 J^(-4/3) (I1 F - F C)
             + [-(2/3) c10 J^(-2/3) I1 - (4/3) c01 J^(-4/3) I2 + J U'(J)] cof F / J,
 
-    the same energy as the singular-value form (PHYSICS.md section 1), at a fraction of its cost."""
+    the same energy as the singular-value form (docs/physics.md section 1), at a fraction of its cost."""
     C = work[0:9].reshape((3, 3))
     cof = work[9:18].reshape((3, 3))
     J, I1, ok = _unclamped_start(F, eps, cof)

@@ -27,7 +27,7 @@ RESOLUTIONS = {
 }
 
 #: Mooney-Rivlin constants (MPa): initial shear modulus 5.4 kPa for flesh, inside the 2.5-60 kPa
-#: published for facial soft tissue (PHYSICS.md section 1), kappa / mu ~ 24 (nu ~ 0.48).
+#: published for facial soft tissue (docs/physics.md section 1), kappa / mu ~ 24 (nu ~ 0.48).
 TISSUES = (
     Tissue("flesh", c10=2.0e-3, c01=0.7e-3, kappa=0.13),
     Tissue("lip", c10=1.5e-3, c01=0.5e-3, kappa=0.1),

@@ -6,7 +6,7 @@ skin, with a half width across and a half thickness through the ribbon. Embeddin
 points in every tet and records, per (muscle, tet), the fraction of samples inside the ribbon
 and the path tangent there (the fibre direction; circumferential for the rings).
 
-Positions follow ``shared/PHYSICS.md`` section 6 (left side; the right side is mirrored).
+Positions follow ``docs/physics.md`` section 6 (left side; the right side is mirrored).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 The head is built the way forensic facial reconstruction works: first the skull (cranium with
 the upper alveolar ridge, mandible with condyles, ramus, body and lower alveolar ridge), then
-soft tissue laid over it with the tissue depths of ``shared/PHYSICS.md`` section 6
+soft tissue laid over it with the tissue depths of ``docs/physics.md`` section 6
 interpolated between landmarks, then the features bone does not carry (nose, lip rolls, neck).
 The mouth is a fold of the skin: a thin slit between the lips opens into a vestibule around
 the teeth crowns and into the oral cavity, all lined with flesh, so the skin is one closed
@@ -26,7 +26,7 @@ from facesim.model import JawGeometry
 
 @dataclass(frozen=True)
 class Subject:
-    """Scalar proportions of one phantom subject (1.0 = the canonical head of PHYSICS.md)."""
+    """Scalar proportions of one phantom subject (1.0 = the canonical head of docs/physics.md)."""
 
     width: float = 1.0          # lateral scale of the face skeleton
     height: float = 1.0         # vertical scale
@@ -372,7 +372,7 @@ def mouth_field(g: sdf.Grid, sub: Subject, arches: DentalArches, teeth_up, teeth
 
 
 #: Soft-tissue depth landmarks: name, bone point (canonical mm), outward direction, target depth (mm),
-#: accepted range (PHYSICS.md section 6; None where the table gives none).
+#: accepted range (docs/physics.md section 6; None where the table gives none).
 DEPTH_LANDMARKS = [
     ("glabella", (0, 48, 82), (0, 0.15, 1), 2.8, (5.0, 6.0)),
     ("nasion", (0, 38, 80), (0, 0, 1), 5.6, (6.5, 7.0)),

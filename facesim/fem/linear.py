@@ -1,7 +1,7 @@
 """Linear solvers for the Newton systems: AMG-preconditioned CG (default) or a direct solve.
 
 AMG: pyamg smoothed aggregation on the 3x3-block matrix with the six rigid-body modes as
-near-null space (without them CG needs ~10x more iterations, PHYSICS.md section 5). The
+near-null space (without them CG needs ~10x more iterations, docs/physics.md section 5). The
 hierarchy is kept and reused while CG converges in few iterations; it is rebuilt before the
 next solve once CG needs more than ``rebuild_factor`` times the iterations per digit of residual
 reduction it needed right after a rebuild (at once if CG fails).

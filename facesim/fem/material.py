@@ -1,4 +1,4 @@
-"""Constitutive models of the flesh, evaluated in batches (PHYSICS.md section 1)."""
+"""Constitutive models of the flesh, evaluated in batches (docs/physics.md section 1)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Data-driven jaw modelling, independent of the FEM (DESIGN.md ``jaw/``).
+"""Data-driven jaw modelling, independent of the FEM (docs/architecture.md ``jaw/``).
 
 - ``frame`` -- the jaw coordinate frame (Zoss et al. 2018 section 3.1).
 - ``motion`` -- synthetic TMJ motion: subjects and capture-like sessions.

@@ -1,7 +1,7 @@
 """Synthetic jaw motion from temporomandibular-joint anatomy: capture-like sessions for the rigs.
 
 The mandible is placed by its two condyles, each sliding along a curved path over its articular
-eminence, and by a rotation about the intercondylar axis (PHYSICS.md section 3 for the ranges).
+eminence, and by a rotation about the intercondylar axis (docs/physics.md section 3 for the ranges).
 
 Eminence path. In the sagittal plane spanned by the chord direction v (the model's
 ``track_direction``, forward and down) and n = v × u (u: unit right -> left condyle), the
@@ -96,7 +96,7 @@ class Subject:
     hysteresis: float = 0.5
     distraction: float = 0.4
 
-    # anatomical ranges used by ``random`` (PHYSICS.md section 3; the last ones are estimates)
+    # anatomical ranges used by ``random`` (docs/physics.md section 3; the last ones are estimates)
     RANGES: ClassVar[dict[str, tuple[float, float]]] = {
         "hinge_opening": (17.0, 20.0),
         "max_opening": (46.5, 50.5),

@@ -1,5 +1,5 @@
 """Bone kinematics: affine cranium/jaw frames with the rigidity penalty (``frames``) and the
-Sifakis 2005 sliding-condyle jaw (``condyle``). See PHYSICS.md section 3."""
+Sifakis 2005 sliding-condyle jaw (``condyle``). See docs/physics.md section 3."""
 
 from facesim.kinematics.condyle import KinematicTerm, SlidingCondyleJaw
 from facesim.kinematics.frames import (

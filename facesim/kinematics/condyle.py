@@ -1,4 +1,4 @@
-"""Sliding-condyle jaw (Sifakis, Neverov, Fedkiw 2005 section 8; PHYSICS.md section 3).
+"""Sliding-condyle jaw (Sifakis, Neverov, Fedkiw 2005 section 8; docs/physics.md section 3).
 
 The mandible is an affine frame ``q = (M row-major (9,), t (3,))`` relative to the cranium
 (``facesim.kinematics.frames``). With the rest TMJ geometry in the cranium frame -- u (unit,
@@ -15,7 +15,7 @@ a valid pose satisfies the six constraints, all linear in q::
     psi6 = wᵀ M v                      in [−s, 0] opening: −sin(opening angle)
 
 Sign conventions (checked against the shipped model in tests/kinematics/test_condyle.py, and
-in agreement with PHYSICS.md): a positive rotation about u drops the chin (opens the mouth) and
+in agreement with docs/physics.md): a positive rotation about u drops the chin (opens the mouth) and
 gives psi6 = −sin(angle) < 0, because R_u(θ) v = cos θ v + sin θ (u × v) = cos θ v − sin θ w;
 a slide forward along +v makes psi4, psi5 positive.
 
@@ -241,7 +241,7 @@ class SlidingCondyleJaw:
 
     def natural_parameters(self, opening: float, hinge_drop: float = 18.0) -> np.ndarray:
         """Parameters ``p (3,)`` of a symmetric opening by ``opening`` rad along the natural path:
-        pure rotation until the lower incisor has dropped by about ``hinge_drop`` mm (PHYSICS.md:
+        pure rotation until the lower incisor has dropped by about ``hinge_drop`` mm (docs/physics.md:
         pure-hinge opening ~17-20 mm), then both condyles translate, linearly in the angle, to the
         end of their tracks at the maximum opening."""
         theta_max = self.geometry.max_opening

@@ -1,4 +1,4 @@
-"""Affine bone frames and the rigidity penalty (Sifakis 2005 section 8; PHYSICS.md section 3).
+"""Affine bone frames and the rigidity penalty (Sifakis 2005 section 8; docs/physics.md section 3).
 
 A bone (cranium or jaw) is an affine frame ``x = M X + t`` stored as 12 coefficients
 ``q = (M row-major (9,), t (3,))``: ``q[3 i + j] = M[i, j]``, ``q[9 + i] = t[i]``. Node positions

@@ -1,4 +1,4 @@
-"""Any fitted jaw rig as the simulator's jaw model (DESIGN.md: "empirical jaw rigs can replace the
+"""Any fitted jaw rig as the simulator's jaw model (docs/architecture.md: "empirical jaw rigs can replace the
 kinematic model").
 
 :class:`RigJaw` wraps a :class:`~facesim.jaw.posselt.PosseltRig` (controls: the sliders

@@ -140,7 +140,7 @@ def test_markers_lie_on_the_skin(head):
 
 
 def test_soft_tissue_depths_in_published_ranges(head):
-    """The anatomy puts every landmark depth inside its PHYSICS.md range; the meshed skin follows
+    """The anatomy puts every landmark depth inside its docs/physics.md range; the meshed skin follows
     it to within the fTetWild envelope (about 1 mm at coarse resolution)."""
     depths = head.meta["soft_tissue_depths"]
     assert set(depths) == {name for name, *_ in phantom.DEPTH_LANDMARKS}

@@ -17,7 +17,7 @@ from facesim.model import load_model
 
 SHIPPED = Path(__file__).resolve().parents[2] / "meshes" / "face_coarse.npz"
 
-#: (muscle, centre (x, y) mm, semi-axes (x, y) mm) of the rings, PHYSICS.md section 6
+#: (muscle, centre (x, y) mm, semi-axes (x, y) mm) of the rings, docs/physics.md section 6
 RINGS = [(f"orbicularis_oris_{half}_{side}", (0.0, -40.0), (26.0, 12.0)) for half in ("upper", "lower") for side in "LR"]
 RINGS += [("orbicularis_oculi_L", (32.0, 27.0), (24.0, 20.0)), ("orbicularis_oculi_R", (-32.0, 27.0), (24.0, 20.0))]
 

@@ -9,7 +9,7 @@ from facesim.fem import MooneyRivlin
 
 
 def numpy_mooney_rivlin(F, c10, c01, kappa, volumetric):
-    """Oracle from the invariants (valid for det F > 0): psi and P (PHYSICS.md section 1)."""
+    """Oracle from the invariants (valid for det F > 0): psi and P (docs/physics.md section 1)."""
     C = np.einsum("kji,kjl->kil", F, F)
     I1 = np.trace(C, axis1=1, axis2=2)
     I2 = 0.5 * (I1 ** 2 - np.einsum("kij,kji->k", C, C))

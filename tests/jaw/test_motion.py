@@ -27,7 +27,7 @@ def test_poses_are_rigid_with_noise(motion):
 
 @pytest.mark.parametrize("subject_seed", [None, 0, 1, 2, 3])
 def test_ranges_are_anatomical(subject_seed):
-    """PHYSICS.md section 3: maximum incisal opening 46-51 mm, protrusion ~8-9 mm, lateral
+    """docs/physics.md section 3: maximum incisal opening 46-51 mm, protrusion ~8-9 mm, lateral
     excursion ~9-12 mm per side, condylar translation at maximum opening 12-20 mm."""
     subject = Subject() if subject_seed is None else Subject.random(subject_seed)
     motion = JawMotion(subject=subject)

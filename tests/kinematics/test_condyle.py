@@ -1,4 +1,4 @@
-"""Sliding-condyle jaw (Sifakis 2005 section 8, PHYSICS.md section 3) on the shipped model's TMJ."""
+"""Sliding-condyle jaw (Sifakis 2005 section 8, docs/physics.md section 3) on the shipped model's TMJ."""
 
 from __future__ import annotations
 
@@ -175,7 +175,7 @@ def test_half_open_jaw_slides_the_condyles_along_the_track(model, jaw):
     geo = model.jaw
     T = jaw.transform([0.5, 12.0, 12.0])
     drop = geo.incisor[1] - apply(T, geo.incisor)[1]
-    assert 35.0 <= drop <= 55.0                                # PHYSICS.md: 46-51 mm at ~0.6 rad
+    assert 35.0 <= drop <= 55.0                                # docs/physics.md: 46-51 mm at ~0.6 rad
     hinge_drop = geo.incisor[1] - apply(jaw.transform([0.5, 0.0, 0.0]), geo.incisor)[1]
     assert drop > hinge_drop + 5.0                             # translation adds to the hinge opening
     # the condyles translate 12 mm along the track, forward and down, not a pure rotation
@@ -189,7 +189,7 @@ def test_maximum_opening_matches_the_physics_reference(model, jaw):
     geo = model.jaw
     T = jaw.transform([geo.max_opening, geo.track_length, geo.track_length])
     drop = geo.incisor[1] - apply(T, geo.incisor)[1]
-    assert 46.0 <= drop <= 51.0                                # max incisal opening, PHYSICS.md section 3
+    assert 46.0 <= drop <= 51.0                                # max incisal opening, docs/physics.md section 3
 
 
 def test_project_restores_a_perturbed_pose(jaw):

@@ -1,4 +1,4 @@
-"""Affine frames: attached positions, their Jacobian, and the rigidity penalty (PHYSICS.md section 3)."""
+"""Affine frames: attached positions, their Jacobian, and the rigidity penalty (docs/physics.md section 3)."""
 
 from __future__ import annotations
 
