@@ -13,13 +13,13 @@ are written frame by frame into ``OUT/``:
 * ``frames.csv`` the solver log, one row per frame; ``report.json`` the summary.
 
 Crash safety: per-frame files are written to a temporary file and renamed; ``frames.csv`` and
-``markers.csv`` are append-only logs, one complete line per write, flushed to disk. A frame is
-complete once its state file and both log rows exist (the ``frames.csv`` row is written last);
-``resume`` keeps the longest run of complete frames at the start of the sequence whose stored
-controls equal the inputs, redraws missing skin or PNG files of those from their state, and
-computes the rest. A frame that does not converge is kept on disk for inspection but flagged
-(``converged`` 0 in ``frames.csv``, listed in ``report.json``), its markers are written as NaN
-(missing), and the next frame starts from the last converged one.
+``markers.csv`` are append-only logs (:mod:`facesim.framelog`), one complete line per write,
+flushed to disk. A frame is complete once its state file and both log rows exist (the
+``frames.csv`` row is written last); ``resume`` keeps the longest run of complete frames at the
+start of the sequence whose stored controls equal the inputs, redraws missing skin or PNG files of
+those from their state, and computes the rest. A frame that does not converge is kept on disk for
+inspection but flagged (``converged`` 0 in ``frames.csv``, listed in ``report.json``), its markers
+are written as NaN (missing), and the next frame starts from the last converged one.
 """
 
 from __future__ import annotations
