@@ -125,6 +125,27 @@ def _node_bucket(x, p, h, mask):
     return _bucket(math.floor(x[p, 0] / h), math.floor(x[p, 1] / h), math.floor(x[p, 2] / h), mask)
 
 
+HASH_CELLS_PER_TRIANGLE = 64
+"""Above this many hash insertions per triangle on average, :func:`candidate_pairs` tests every
+pair instead of hashing."""
+
+
+@njit(**JIT_FLAGS)
+def hash_insertions(x, tris, h, inflate):
+    """How many cells :func:`build_hash` would fill (float; ``inf`` for non-finite positions)."""
+    total = 0.0
+    for t in range(tris.shape[0]):
+        cells = 1.0
+        for k in range(3):
+            a, b, c = x[tris[t, 0], k], x[tris[t, 1], k], x[tris[t, 2], k]
+            lo, hi = min(a, b, c) - inflate, max(a, b, c) + inflate
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                return math.inf
+            cells *= math.floor(hi / h) - math.floor(lo / h) + 1.0
+        total += cells
+    return total
+
+
 @njit(**JIT_FLAGS)
 def candidate_pairs(x, nodes, node_side, tris, tri_side, tri_normal, radius, h):
     """Every (node, triangle) pair passing the exact candidate test (other surface, not degenerate
@@ -133,9 +154,26 @@ def candidate_pairs(x, nodes, node_side, tris, tri_side, tri_normal, radius, h):
     rebuilt from ``x``: a triangle within ``radius`` of a node has its box inflated by ``radius``
     over the node's cell, so the node's bucket holds it, whatever ``h`` (about ``radius`` keeps
     both the buckets and the insertions per triangle few). Returns ``(ptr (k + 1,), tri)``: node
-    ``i``'s candidates are ``tri[ptr[i]:ptr[i + 1]]``, ascending."""
-    start, items, mask = build_hash(x, tris, h, radius)
+    ``i``'s candidates are ``tri[ptr[i]:ptr[i + 1]]``, ascending.
+
+    When the triangles' boxes would fill more than :data:`HASH_CELLS_PER_TRIANGLE` cells each on
+    average -- a line-search trial that throws a lip node metres away stretches its triangles over
+    millions of cells (examples/02_jaw_and_contact.py on the coarse face: 24 GB, killed for lack of
+    memory) -- or positions are not finite, every pair is tested instead (the same pairs)."""
     k = nodes.shape[0]
+    if hash_insertions(x, tris, h, radius) > HASH_CELLS_PER_TRIANGLE * max(tris.shape[0], 1):
+        out = []
+        ptr = np.zeros(k + 1, dtype=np.int64)
+        for i in range(k):
+            for t in range(tris.shape[0]):
+                if _candidate(x, nodes, node_side, tris, tri_side, tri_normal, i, t, radius):
+                    out.append(t)
+            ptr[i + 1] = len(out)
+        tri = np.empty(len(out), dtype=np.int64)
+        for q in range(len(out)):
+            tri[q] = out[q]
+        return ptr, tri
+    start, items, mask = build_hash(x, tris, h, radius)
     bound = np.zeros(k + 1, dtype=np.int64)   # bucket sizes bound the candidate counts: one pass
     for i in range(k):
         b = _node_bucket(x, nodes[i], h, mask)

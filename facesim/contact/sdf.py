@@ -1,8 +1,8 @@
 """Rigid colliders as signed distance functions (SDFs): mm, negative inside.
 
 Shapes are defined in their own local frame: :class:`Sphere`, :class:`Plane`, :class:`Capsule`
-(closed forms) and :class:`MeshSDF` (a precomputed grid of a closed triangle mesh, trilinearly
-interpolated). A :class:`Collider` places a shape with a rigid pose ``T (4, 4)`` (local ->
+(closed forms) and :class:`MeshSDF` (a precomputed grid of a closed triangle mesh, evaluated as a
+cubic B-spline, or trilinearly). A :class:`Collider` places a shape with a rigid pose ``T (4, 4)`` (local ->
 world), so it can follow a bone or be scripted in time; :class:`KinematicPath` is a collider
 moved by one pose per frame.
 
@@ -197,17 +197,35 @@ class Capsule(SDF):
 
 
 class MeshSDF(SDF):
-    """Signed distance of a closed triangle mesh, sampled on a regular grid and interpolated
-    trilinearly.
+    """Signed distance of a closed triangle mesh, sampled on a regular grid.
 
     ``origin (3,)`` mm is grid node (0, 0, 0), ``spacing`` mm the node spacing, ``values (nx, ny,
-    nz)`` mm the signed distances at the nodes (every n >= 2). Value, gradient and Hessian are
-    those of the interpolant (C0, gradient jumps across cell faces). Outside the grid box the
+    nz)`` mm the signed distances at the nodes (every n >= 2). ``interpolation``:
+
+    - ``"cubic"`` (default): the cubic B-spline with the values as its coefficients
+      (:func:`facesim._kernels.contact.grid_sdf_cubic`). C2: value, gradient and Hessian are
+      continuous, so a penalty on it is a smooth energy that Newton can solve to any tolerance.
+      It approximates: a surface of radius r moves by about ``spacing^2 / (3 r)`` (0.02 mm on a
+      15 mm sphere at 1 mm) and the kinks of the distance (its medial axis, e.g. mid-way inside a
+      tooth) are rounded by a fraction of a cell; no overshoot.
+    - ``"linear"``: trilinear interpolation, exact at the nodes but C0: the gradient jumps across
+      every cell face. A contact node whose equilibrium lies on a face (its force flips with the
+      side) has no point where the residual vanishes: on the shipped face, lip nodes pressed on
+      the incisal edge of the teeth held Newton at 0.4-3 N (vs tolerances of ~1e-5 N) for 100-200
+      iterations (examples/02_jaw_and_contact.py, frames 14-29).
+
+    Value, gradient and Hessian are those of the function evaluated. Outside the grid box the
     distance is the value at the nearest box point plus the distance to the box.
     Build from a mesh with :meth:`from_mesh`.
     """
 
-    def __init__(self, origin, spacing: float, values):
+    INTERPOLATIONS = ("cubic", "linear")
+
+    def __init__(self, origin, spacing: float, values, interpolation: str = "cubic"):
+        if interpolation not in self.INTERPOLATIONS:
+            raise FacesimError(f"grid interpolation: expected one of {', '.join(self.INTERPOLATIONS)}, "
+                               f"got {interpolation!r}")
+        self.interpolation = interpolation
         self.origin = _vector(origin, "grid origin")
         self.spacing = _positive(spacing, "grid spacing")
         v = np.ascontiguousarray(values, dtype=np.float64)
@@ -228,7 +246,7 @@ class MeshSDF(SDF):
 
     @classmethod
     def from_mesh(cls, vertices, faces, spacing: float = 1.0, margin: float = 5.0, band: float | None = None,
-                  name: str = "mesh") -> MeshSDF:
+                  name: str = "mesh", interpolation: str = "cubic") -> MeshSDF:
         """Sample the signed distance of the closed mesh ``vertices (nv, 3)`` mm, ``faces (nf, 3)``
         int on a grid of ``spacing`` mm covering its bounding box plus ``margin`` mm.
 
@@ -237,7 +255,8 @@ class MeshSDF(SDF):
         makelevelset3), giving exact distances to candidate triangles (upper bounds, within
         0.06 mm of exact on spheres at 1 mm spacing). The sign
         comes from the parity of ray crossings, so the orientation of the faces does not
-        matter but the mesh must be closed (every edge shared by two faces).
+        matter but the mesh must be closed (every edge shared by two faces). ``interpolation``: see
+        the class.
         """
         t0 = time.perf_counter()
         V = np.ascontiguousarray(vertices, dtype=np.float64)
@@ -277,7 +296,7 @@ class MeshSDF(SDF):
         K.inside_by_parity(V, F, lo, spacing, shape, eps, inside)
         values = np.sqrt(dist2)
         values[inside] *= -1.0
-        sdf = cls(lo, spacing, values)
+        sdf = cls(lo, spacing, values, interpolation)
         sdf.build_seconds = time.perf_counter() - t0
         sdf.mesh = (V, F)
         return sdf
@@ -294,10 +313,12 @@ class MeshSDF(SDF):
         return np.asarray(iso.points, dtype=np.float64), np.asarray(iso.faces).reshape(-1, 4)[:, 1:]
 
     def _kernel(self, P, R, t, d, G, H, want_h):
-        K.grid_sdf(P, R, t, self.origin, self.spacing, self.values, d, G, H, want_h)
+        kernel = K.grid_sdf_cubic if self.interpolation == "cubic" else K.grid_sdf
+        kernel(P, R, t, self.origin, self.spacing, self.values, d, G, H, want_h)
 
     def __repr__(self):
-        return f"MeshSDF(origin={self.origin.tolist()}, spacing={self.spacing}, shape={self.shape})"
+        return (f"MeshSDF(origin={self.origin.tolist()}, spacing={self.spacing}, shape={self.shape}, "
+                f"interpolation={self.interpolation!r})")
 
 
 class Collider(_Evaluated):

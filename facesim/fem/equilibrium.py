@@ -213,13 +213,14 @@ class FaceSimulator:
             self._teeth = (nodes, teeth, node_areas(m.X, tris)[nodes], np.minimum(0.0, rest) - 0.05 * (rest < 0))
         return self._teeth
 
-    def teeth_term(self, controls: Controls, force: bool = False):
+    def teeth_term(self, controls: Controls, force: bool = False, transforms=None):
         """The lips-against-teeth :class:`~facesim.contact.ContactTerm` posed for ``controls`` (None
-        without teeth contact, unless ``force``: then also for measuring)."""
+        without teeth contact, unless ``force``: then also for measuring); ``transforms = (Hc, Hj)``
+        overrides the controls' bones (the intermediate poses of a substep)."""
         if not (self.options.teeth_contact or force):
             return None
         nodes, teeth, weights, margin = self._teeth_setup()
-        Hc, Hj = self.bone_transforms(controls)
+        Hc, Hj = transforms if transforms is not None else self.bone_transforms(controls)
         from facesim.contact.sdf import Collider
 
         colliders = [Collider(sdf, Hc if bone == "cranium" else Hj) for sdf, bone in teeth]
@@ -236,11 +237,11 @@ class FaceSimulator:
             self._lips = lip_contact_term(self.model, stiffness=self.options.contact_stiffness)
         return self._lips
 
-    def posed_colliders(self, controls: Controls, frame: float = 0.0) -> list:
-        """The external colliders posed at ``frame`` with the bones of ``controls``."""
+    def posed_colliders(self, controls: Controls, frame: float = 0.0, transforms=None) -> list:
+        """The external colliders posed at ``frame`` with the bones of ``controls`` (or ``transforms``)."""
         if not self.options.colliders:
             return []
-        Hc, Hj = self.bone_transforms(controls)
+        Hc, Hj = transforms if transforms is not None else self.bone_transforms(controls)
         return [c.at(frame, Hc, Hj) for c in self.options.colliders]
 
     def skin_term(self, colliders) -> ContactTerm | None:
@@ -254,13 +255,14 @@ class FaceSimulator:
                                      weights=node_areas(m.X, m.skin)[nodes])
         return self._skin.with_colliders(colliders)
 
-    def contact_terms(self, controls: Controls, frame: float = 0.0) -> tuple:
+    def contact_terms(self, controls: Controls, frame: float = 0.0, transforms=None) -> tuple:
         """The contact energy terms of the set-up posed for ``controls`` at ``frame`` (teeth with
-        their bones, lips, skin against the external colliders)."""
-        terms = [self.teeth_term(controls)]
+        their bones, lips, skin against the external colliders); ``transforms = (Hc, Hj)``
+        overrides the controls' bones."""
+        terms = [self.teeth_term(controls, transforms=transforms)]
         if self.options.lip_contact:
             terms.append(self.lip_term())
-        terms.append(self.skin_term(self.posed_colliders(controls, frame)))
+        terms.append(self.skin_term(self.posed_colliders(controls, frame, transforms)))
         return tuple(t for t in terms if t is not None)
 
     def contact_measures(self, x, controls: Controls, frame: float = 0.0) -> dict:
@@ -324,15 +326,25 @@ class FaceSimulator:
         controls = self._check(controls)
         return Problem(self.terms + tuple(extra_terms), self.system, self.attached_positions(controls, x), controls.a)
 
-    def force_scale(self, controls: Controls, extra_terms=()) -> float:
-        """Residual force of the cold start (rest shape, bones placed): the reference "relative" refers to."""
+    def force_scale(self, controls: Controls, extra_terms=(), start=None) -> float:
+        """The reference force "relative" refers to (N): the residual of the cold start (rest shape,
+        bones placed), or of ``start (n, 3)`` (this solve's starting guess, bones placed) when that
+        is larger. The cold start alone vanishes when it is the equilibrium -- the rest controls
+        with no contact engaged, e.g. the jaw back at rest after an opening: the tolerance was then
+        ``atol`` = 1e-10 N on forces of ~40 N out of balance at the warm start, which no solve
+        reaches (frame 14 of examples/02_jaw_and_contact.py: relative residual 3e12 at 0.4 N)."""
         prob = self.problem(controls, None, extra_terms)   # its start is the cold start
-        return float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]))
+        scale = float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]))
+        if start is not None:
+            prob = self.problem(controls, start, extra_terms)
+            scale = max(scale, float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1])))
+        return scale
 
-    def solve_terms(self, controls: Controls, frame: float = 0.0, extra_terms=()) -> tuple:
+    def solve_terms(self, controls: Controls, frame: float = 0.0, extra_terms=(), transforms=None) -> tuple:
         """The energy terms besides flesh and muscles of a solve at ``controls`` and ``frame``: the
-        set-up's contact terms posed there, then ``extra_terms``."""
-        return self.contact_terms(controls, frame) + tuple(extra_terms)
+        set-up's contact terms posed there (with the bones of ``transforms`` when given), then
+        ``extra_terms``."""
+        return self.contact_terms(controls, frame, transforms) + tuple(extra_terms)
 
     def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None,
                     extra_terms=(), frame: float = 0.0) -> Equilibrium:
@@ -350,19 +362,22 @@ class FaceSimulator:
             if not np.isfinite(x0).all():
                 raise SolverError("equilibrium: the warm start has non-finite positions")
         options = newton_options or self.options.newton
-        extra_terms = self.solve_terms(controls, frame, extra_terms)
-        scale = self.force_scale(controls, extra_terms)
-        prob = self.problem(controls, self.predict(controls, x0), extra_terms)
+        user_terms = tuple(extra_terms)
+        extra_terms = self.solve_terms(controls, frame, user_terms)
+        start = self.predict(controls, x0)
+        scale = self.force_scale(controls, extra_terms, start)
+        prob = self.problem(controls, start, extra_terms)
         x, rep = newton(prob, options, scale, self.linear)
         if not rep.converged and self.options.substeps > 1:
-            x, rep = self._substepped(controls, x0, options, scale, rep, extra_terms)
+            x, rep = self._substepped(controls, x0, options, scale, rep, user_terms, frame)
         if not np.isfinite(x).all():
             rep.converged = False
         rep.seconds["total"] = time.perf_counter() - t0
         return Equilibrium(x=x, controls=controls, report=rep)
 
-    def _substepped(self, controls, x0, options, scale, failed, extra_terms=()):
-        """Retry a failed solve as a path of equilibria from the start state to ``controls``."""
+    def _substepped(self, controls, x0, options, scale, failed, extra_terms=(), frame: float = 0.0):
+        """Retry a failed solve as a path of equilibria from the start state to ``controls``; the
+        bone-carried contact (teeth, colliders on a bone) is posed with each substep's bones."""
         m = self.model
         start = self.attached_positions(Controls(controls.a, None, controls.head)) if x0 is None else x0
         # the start's bone poses, fitted to its attached nodes (exact for rigid bones)
@@ -377,7 +392,8 @@ class FaceSimulator:
             Hs = tuple(interpolate_rigid(A, B, s, m.X[nodes].mean(axis=0) if len(nodes) else (0, 0, 0))
                        for A, B, nodes in zip(H0, H1, (m.cranium_nodes, m.jaw_nodes)))
             a = (1 - s) * a0 + s * controls.a
-            prob = Problem(self.terms + tuple(extra_terms), self.system,
+            terms = self.solve_terms(controls, frame, extra_terms, Hs)
+            prob = Problem(self.terms + terms, self.system,
                            self.attached_positions(controls, self.predict(controls, x, Hs), Hs), a)
             x, rep = newton(prob, options, scale, self.linear)
             iterations += rep.iterations

@@ -331,9 +331,9 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     more at that rate would converge; then Newton steps with the true tangent at ``u``, solved by
     CG preconditioned with ``K0`` (a few iterations: the two tangents are close).
 
-    Converged when ``|g|`` meets the simulator's Newton tolerance (``rtol`` times the cold-start
-    force of :meth:`FaceSimulator.force_scale`, plus ``atol``), as :meth:`FaceSimulator.equilibrium`
-    requires. Gives up (``converged=False``) when a chord iteration does not shrink the residual,
+    Converged when ``|g|`` meets the simulator's Newton tolerance (``rtol`` times the reference
+    force of :meth:`FaceSimulator.force_scale` at this start, plus ``atol``), as
+    :meth:`FaceSimulator.equilibrium` requires. Gives up (``converged=False``) when a chord iteration does not shrink the residual,
     a Newton step does not shrink it by ``contraction`` or CG fails -- the tangent here is then too
     far from ``K0`` -- or after ``max_iterations``. Returns ``(x (n, 3), iterations, linear solves,
     converged)``; ``x`` is the iterate of least residual, a warm start for Newton if not converged."""
@@ -345,7 +345,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     with single_blas_thread():
         prob = Problem(sim.terms + extras, system, sim.attached_positions(controls, x0), controls.a)
         newton = sim.options.newton
-        tol = newton.rtol * sim.force_scale(controls, extras) + newton.atol
+        tol = newton.rtol * sim.force_scale(controls, extras, prob.x_fixed) + newton.atol
         u = prob.x_fixed[system.active].ravel().copy()
         x = best = prob.x_fixed
         previous, chord = np.inf, True

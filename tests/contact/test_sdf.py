@@ -125,22 +125,58 @@ def test_mesh_sdf_non_convex_torus():
     assert np.abs(d - exact)[near].max() < 0.1 * sdf.spacing
     clear = np.abs(exact) > 0.1
     assert np.all(np.sign(d)[clear] == np.sign(exact)[clear])
-    assert sdf.distance([0.0, 0.0, 0.0])[0] == pytest.approx(8.0, abs=0.05)   # the hole is outside
+    # the hole is outside; its centre is a kink of the distance (a cone's apex), which the cubic
+    # spline rounds by a fraction of a cell, the trilinear grid reproduces
+    assert sdf.distance([0.0, 0.0, 0.0])[0] == pytest.approx(8.0, abs=0.4)
+    linear = MeshSDF(sdf.origin, sdf.spacing, sdf.values, interpolation="linear")
+    assert linear.distance([0.0, 0.0, 0.0])[0] == pytest.approx(8.0, abs=0.05)
 
 
-def test_grid_kernel_against_numpy_trilinear(sphere_grid):
+def test_grid_kernels_against_scipy_splines(sphere_grid):
+    """Cubic (default): the cubic B-spline with the samples as coefficients, continued linearly
+    beyond the box; linear: trilinear interpolation, exact at the nodes."""
     sdf = sphere_grid
-    q = np.random.default_rng(4).uniform(*sdf.bounds, (500, 3))
+    assert sdf.interpolation == "cubic"
+    rng = np.random.default_rng(4)
+    lo, hi = sdf.bounds
+    q = rng.uniform(lo + 2 * sdf.spacing, hi - 2 * sdf.spacing, (500, 3))   # the boundary rule aside
     idx = ((q - sdf.origin) / sdf.spacing).T
-    np.testing.assert_allclose(sdf.distance(q), map_coordinates(sdf.values, idx, order=1), atol=1e-12)
-    # grid nodes reproduce the stored values
+    np.testing.assert_allclose(sdf.distance(q), map_coordinates(sdf.values, idx, order=3, prefilter=False),
+                               atol=1e-12)
+    # a linear field is reproduced everywhere in the box, up to its faces
+    ramp = sdf.origin[None, None, None] + sdf.spacing * np.stack(np.indices(sdf.shape), -1)
+    ramp = ramp @ np.array([0.3, -0.5, 0.8])
+    line = MeshSDF(sdf.origin, sdf.spacing, ramp)
+    q = rng.uniform(lo, hi, (500, 3))
+    np.testing.assert_allclose(line.distance(q), q @ np.array([0.3, -0.5, 0.8]), atol=1e-9)
+    np.testing.assert_allclose(line.gradient(q), np.tile([0.3, -0.5, 0.8], (500, 1)), atol=1e-9)
+    linear = MeshSDF(sdf.origin, sdf.spacing, sdf.values, interpolation="linear")
+    np.testing.assert_allclose(linear.distance(q), map_coordinates(sdf.values, ((q - sdf.origin) / sdf.spacing).T,
+                                                                  order=1), atol=1e-12)
+    # grid nodes reproduce the stored values (linear)
     ijk = np.array([[0, 0, 0], [5, 7, 9], [s - 1 for s in sdf.shape]])
-    np.testing.assert_allclose(sdf.distance(sdf.origin + sdf.spacing * ijk), sdf.values[tuple(ijk.T)], atol=1e-12)
+    np.testing.assert_allclose(linear.distance(sdf.origin + sdf.spacing * ijk), sdf.values[tuple(ijk.T)], atol=1e-12)
+    with pytest.raises(FacesimError, match="interpolation"):
+        MeshSDF(sdf.origin, sdf.spacing, sdf.values, interpolation="quintic")
+
+
+def test_cubic_grid_gradient_is_continuous_across_cell_faces(sphere_grid):
+    """C2: no jump of the gradient where a point crosses a cell face (the trilinear one jumps)."""
+    sdf = sphere_grid
+    linear = MeshSDF(sdf.origin, sdf.spacing, sdf.values, interpolation="linear")
+    rng = np.random.default_rng(7)
+    p = rng.normal(size=(200, 3))
+    p = p / np.linalg.norm(p, axis=1, keepdims=True) * rng.uniform(13.0, 17.0, (200, 1))
+    p[:, 0] = sdf.origin[0] + np.round((p[:, 0] - sdf.origin[0]) / sdf.spacing) * sdf.spacing
+    e = np.array([1e-9, 0.0, 0.0])
+    assert np.abs(sdf.gradient(p + e) - sdf.gradient(p - e)).max() < 1e-6
+    assert np.abs(sdf.hessian(p + e) - sdf.hessian(p - e)).max() < 1e-5
+    assert np.abs(linear.gradient(p + e) - linear.gradient(p - e)).max() > 1e-3
 
 
 def test_mesh_sdf_derivatives(sphere_grid):
-    """Gradient and Hessian of the interpolant, inside cells (away from the faces where the
-    gradient jumps) and outside the grid box."""
+    """Gradient and Hessian of the grid SDF, inside cells (away from the faces where the trilinear
+    gradient would jump) and outside the grid box."""
     sdf = sphere_grid
     rng = np.random.default_rng(5)
     cells = rng.integers(0, np.array(sdf.shape) - 1, (60, 3))
