@@ -588,7 +588,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--jaw", metavar="J.csv", help="jaw pose per frame (default: jaw at rest)")
     simulate.add_argument("--jaw-model", default="rigid", metavar="{rigid,sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
                           help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening), "
-                               "sliding-condyle (frame,opening,left_slide,right_slide in rad, mm, mm; Sifakis 2005), "
+                               "sliding-condyle (frame,opening,right_slide,left_slide in rad, mm, mm; Sifakis 2005), "
                                "or a fitted jaw rig (facesim jaw fit): posselt:RIG.npz with frame,sx,sy,sz sliders in "
                                "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3; posselt alone is the model's own rig "
                                "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")

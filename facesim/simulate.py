@@ -43,7 +43,7 @@ from facesim.fem.newton import NewtonOptions
 from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.model import FaceModel
 
-FRAME_LOG_COLUMNS = ("frame", "converged", "iterations", "relative_residual", "residual_N", "seconds",
+FRAME_LOG_COLUMNS = ("frame", "converged", "stop_reason", "iterations", "relative_residual", "residual_N", "seconds",
                      "linear_iterations", "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm",
                      "inverted_tets", "min_J", "error")
 _OUTPUT_FILES = ("markers.csv", "markers.trc", "frames.csv", "report.json", "video.mp4", "video.gif")
@@ -130,7 +130,10 @@ def _frame_row(k: int, f, seconds: float) -> dict:
     residual = float(report.residuals[-1]) if report is not None and report.residuals else math.nan
     # SolveReport.relative_residual divides by the cold-start force, which is 0 for a frame at rest
     relative = residual / report.force_scale if report is not None and report.force_scale > 0 else math.nan
-    return {"frame": k, "converged": int(f.converged), "iterations": 0 if report is None else int(report.iterations),
+    reason = "solver_failed" if report is None else (report.stop_reason or ("converged" if f.converged else ""))
+    if not f.converged and reason == "converged":   # e.g. non-finite positions after a converged solve
+        reason = "non_finite"
+    return {"frame": k, "converged": int(f.converged), "stop_reason": reason, "iterations": 0 if report is None else int(report.iterations),
             "relative_residual": relative, "residual_N": residual, "seconds": seconds,
             "linear_iterations": 0 if report is None else int(sum(report.linear_iterations)),
             **{c: f.measures.get(c, math.nan) for c in _MEASURES}, "inverted_tets": int(f.inverted),
@@ -389,6 +392,8 @@ def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
         "finished_frames": len(rows),
         "converged": len(rows) - len(failed),
         "unconverged_frames": [r["frame"] for r in failed],
+        "unconverged_reasons": {str(r["frame"]): r["stop_reason"] for r in failed},
+        "stop_reasons": {c: sum(r["stop_reason"] == c for r in rows) for c in sorted({r["stop_reason"] for r in rows})},
         "errors": {str(r["frame"]): r["error"] for r in failed if r["error"]},
         "newton_iterations": int(sum(r["iterations"] for r in rows)),
         "frames_with_inverted_tets": [r["frame"] for r in rows if r["inverted_tets"] != 0],

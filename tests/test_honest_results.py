@@ -103,6 +103,16 @@ def test_a_user_mistake_is_not_a_failed_frame(box_model):
     assert not issubclass(SolverError, FacesimError) and not issubclass(FacesimError, SolverError)
 
 
+def test_simulate_names_why_a_frame_stopped(box_model, tmp_path):
+    from facesim.simulate import SimulateOptions, simulate
+
+    options = SimulateOptions(newton=NewtonOptions(linear_solver="direct", max_iterations=1))
+    s = simulate(box_model, np.array([[0.9, 0.9]]), tmp_path, options=options, progress=False)
+    row = _rows(tmp_path / "frames.csv")[0]
+    assert row["converged"] == "0" and row["stop_reason"] in ("iteration_limit", "line_search_failed")
+    assert s["unconverged_frames"] == [0] and s["unconverged_reasons"]["0"] == row["stop_reason"]
+
+
 def test_a_solver_failure_is_a_flagged_frame_and_no_warm_start(box_model, monkeypatch):
     sim = Simulation(box_model, newton=NewtonOptions(linear_solver="direct"))
     good = sim.step({"lip_L": 0.2} if "lip_L" in box_model.muscles.names else np.full(2, 0.2))
@@ -123,6 +133,7 @@ def test_simulate_reports_inverted_tets_and_min_J(box_model, tmp_path):
     s = simulate(box_model, np.array([[0.0, 0.0], [0.5, 0.5]]), tmp_path, progress=False)
     rows = _rows(tmp_path / "frames.csv")
     assert [r["inverted_tets"] for r in rows] == ["0", "0"]
+    assert [r["stop_reason"] for r in rows] == ["converged", "converged"] and s["stop_reasons"] == {"converged": 2}
     assert float(rows[0]["min_J"]) == pytest.approx(1.0, abs=1e-9)   # the rest shape
     assert 0.0 < float(rows[1]["min_J"]) < 1.0 and s["frames_with_inverted_tets"] == []
     # measured with the contact off: finite on the box (it has lips and teeth), NaN without the surfaces

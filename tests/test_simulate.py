@@ -25,7 +25,7 @@ from facesim.simulate import SimulateOptions, simulate
 
 ACTIVATIONS = "frame,zygomaticus_major_L,orbicularis_oris\n0,0,0\n1,1,0\n2,0.5,0.3\n"
 JAW = "frame,opening\n0,0\n1,0\n2,0.05\n"
-FRAME_LOG = ["frame", "converged", "iterations", "relative_residual", "residual_N", "seconds", "linear_iterations",
+FRAME_LOG = ["frame", "converged", "stop_reason", "iterations", "relative_residual", "residual_N", "seconds", "linear_iterations",
              "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm", "inverted_tets", "min_J", "error"]
 
 

@@ -371,7 +371,7 @@ class FaceSimulator:
         if not rep.converged and self.options.substeps > 1:
             x, rep = self._substepped(controls, x0, options, scale, rep, user_terms, frame)
         if not np.isfinite(x).all():
-            rep.converged = False
+            rep.converged, rep.stop_reason = False, "non_finite"
         rep.seconds["total"] = time.perf_counter() - t0
         return Equilibrium(x=x, controls=controls, report=rep)
 

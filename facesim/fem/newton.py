@@ -72,6 +72,7 @@ class SolveReport:
     projected: list = field(default_factory=list)
     linear_iterations: list = field(default_factory=list)
     force_scale: float = 1.0
+    stop_reason: str = ""   # "converged", "iteration_limit" or "line_search_failed"
     seconds: dict = field(default_factory=dict)
 
     @property
@@ -210,6 +211,7 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
                 true_below = 0.1 * rel
                 continue
             rep.iterations += 1
+            rep.stop_reason = "line_search_failed"
             break   # line search failed: energy cannot decrease along du any more
         u = u + alpha * du
         x, E, g = x_new, E_new, g_new
@@ -219,6 +221,10 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
         rep.residuals.append(float(np.linalg.norm(g)))
         rep.energies.append(E)
     rep.converged = rep.residuals[-1] <= tol
+    if rep.converged:
+        rep.stop_reason = "converged"
+    elif not rep.stop_reason:
+        rep.stop_reason = "iteration_limit"
     rep.seconds = {"total": time.perf_counter() - t_start, "assembly": problem.timing["assembly"],
                    "gradient": problem.timing["gradient"],
                    "linear": linear.stats.setup_seconds + linear.stats.solve_seconds - lin_t0}
