@@ -121,6 +121,28 @@ def capsule_sdf(P, R, t, a, b, radius, d, G, H, want_h):
 
 
 @njit(**JIT_FLAGS)
+def _outside_box(val, gl, Hl, o, out, dist2):
+    """A grid SDF beyond its box: the value at the nearest box point ``val`` plus the distance
+    ``sqrt(dist2)`` to it; along the clamped components ``out (3,)`` (offsets ``o (3,)``) the grid
+    function does not vary, ``|p - q|`` does: ``gl`` and ``Hl`` are corrected in place."""
+    if dist2 <= 0.0:
+        return val
+    dist = math.sqrt(dist2)
+    for k in range(3):
+        if out[k]:
+            gl[k] = o[k] / dist
+            for m in range(3):
+                Hl[k, m] = 0.0
+                Hl[m, k] = 0.0
+    for k in range(3):
+        if out[k]:
+            for m in range(3):
+                if out[m]:
+                    Hl[k, m] = ((1.0 if k == m else 0.0) - gl[k] * gl[m]) / dist
+    return val + dist
+
+
+@njit(**JIT_FLAGS)
 def grid_sdf(P, R, t, origin, h, values, d, G, H, want_h):
     """Trilinear interpolant of a signed-distance grid: ``values (nx, ny, nz)`` at the nodes
     ``origin + h (i, j, k)`` (local frame, mm, every n >= 2).
@@ -180,21 +202,7 @@ def grid_sdf(P, R, t, origin, h, values, d, G, H, want_h):
         Hl[1, 0] = Hl[0, 1]
         Hl[2, 0] = Hl[0, 2]
         Hl[2, 1] = Hl[1, 2]
-        if dist2 > 0.0:
-            # clamped components: the interpolant does not vary with them, |p - q| does
-            dist = math.sqrt(dist2)
-            val += dist
-            for k in range(3):
-                if out[k]:
-                    gl[k] = o[k] / dist
-                    for m in range(3):
-                        Hl[k, m] = 0.0
-                        Hl[m, k] = 0.0
-            for k in range(3):
-                if out[k]:
-                    for m in range(3):
-                        if out[m]:
-                            Hl[k, m] = ((1.0 if k == m else 0.0) - gl[k] * gl[m]) / dist
+        val = _outside_box(val, gl, Hl, o, out, dist2)
         d[i] = val
         _to_world(i, R, gl, Hl, G, H, want_h)
 
@@ -296,21 +304,7 @@ def grid_sdf_cubic(P, R, t, origin, h, values, d, G, H, want_h):
         Hl[1, 0] = Hl[0, 1]
         Hl[2, 0] = Hl[0, 2]
         Hl[2, 1] = Hl[1, 2]
-        if dist2 > 0.0:
-            # clamped components: the spline does not vary with them, |p - q| does
-            dist = math.sqrt(dist2)
-            val += dist
-            for k in range(3):
-                if out[k]:
-                    gl[k] = o[k] / dist
-                    for m in range(3):
-                        Hl[k, m] = 0.0
-                        Hl[m, k] = 0.0
-            for k in range(3):
-                if out[k]:
-                    for m in range(3):
-                        if out[m]:
-                            Hl[k, m] = ((1.0 if k == m else 0.0) - gl[k] * gl[m]) / dist
+        val = _outside_box(val, gl, Hl, o, out, dist2)
         d[i] = val
         _to_world(i, R, gl, Hl, G, H, want_h)
 
