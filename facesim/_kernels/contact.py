@@ -121,6 +121,24 @@ def capsule_sdf(P, R, t, a, b, radius, d, G, H, want_h):
 
 
 @njit(**JIT_FLAGS)
+def _grid_coordinate(x, origin, h, n, k, o, out):
+    """Grid coordinate of ``x`` (mm) along axis ``k`` of a grid of ``n`` nodes, clamped to the box;
+    ``o[k]`` the offset beyond the box (mm, 0 inside) and ``out[k]`` whether it was clamped."""
+    u = (x - origin) / h
+    out[k] = False
+    o[k] = 0.0
+    if u < 0.0:
+        o[k] = u * h
+        u = 0.0
+        out[k] = True
+    elif u > n - 1:
+        o[k] = (u - (n - 1)) * h
+        u = float(n - 1)
+        out[k] = True
+    return u
+
+
+@njit(**JIT_FLAGS)
 def _outside_box(val, gl, Hl, o, out, dist2):
     """A grid SDF beyond its box: the value at the nearest box point ``val`` plus the distance
     ``sqrt(dist2)`` to it; along the clamped components ``out (3,)`` (offsets ``o (3,)``) the grid
@@ -165,17 +183,7 @@ def grid_sdf(P, R, t, origin, h, values, d, G, H, want_h):
         _to_local(P, i, R, t, pl)
         dist2 = 0.0
         for k in range(3):
-            u = (pl[k] - origin[k]) / h
-            out[k] = False
-            o[k] = 0.0
-            if u < 0.0:
-                o[k] = u * h
-                u = 0.0
-                out[k] = True
-            elif u > n[k] - 1:
-                o[k] = (u - (n[k] - 1)) * h
-                u = float(n[k] - 1)
-                out[k] = True
+            u = _grid_coordinate(pl[k], origin[k], h, n[k], k, o, out)
             dist2 += o[k] * o[k]
             c = min(math.floor(u), n[k] - 2)
             idx[k] = c
@@ -253,17 +261,7 @@ def grid_sdf_cubic(P, R, t, origin, h, values, d, G, H, want_h):
         _to_local(P, i, R, t, pl)
         dist2 = 0.0
         for k in range(3):
-            u = (pl[k] - origin[k]) / h
-            out[k] = False
-            o[k] = 0.0
-            if u < 0.0:
-                o[k] = u * h
-                u = 0.0
-                out[k] = True
-            elif u > n[k] - 1:
-                o[k] = (u - (n[k] - 1)) * h
-                u = float(n[k] - 1)
-                out[k] = True
+            u = _grid_coordinate(pl[k], origin[k], h, n[k], k, o, out)
             dist2 += o[k] * o[k]
             c = min(math.floor(u), n[k] - 2)
             _cubic_bspline(u - c, h, w[k], dw[k], ddw[k])
