@@ -130,9 +130,7 @@ def _frame_row(k: int, f, seconds: float) -> dict:
     residual = float(report.residuals[-1]) if report is not None and report.residuals else math.nan
     # SolveReport.relative_residual divides by the cold-start force, which is 0 for a frame at rest
     relative = residual / report.force_scale if report is not None and report.force_scale > 0 else math.nan
-    reason = "solver_failed" if report is None else (report.stop_reason or ("converged" if f.converged else ""))
-    if not f.converged and reason == "converged":   # e.g. non-finite positions after a converged solve
-        reason = "non_finite"
+    reason = "solver_failed" if report is None else report.stop_reason   # Newton's, or "non_finite"
     return {"frame": k, "converged": int(f.converged), "stop_reason": reason, "iterations": 0 if report is None else int(report.iterations),
             "relative_residual": relative, "residual_N": residual, "seconds": seconds,
             "linear_iterations": 0 if report is None else int(sum(report.linear_iterations)),

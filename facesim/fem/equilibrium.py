@@ -72,11 +72,6 @@ class EquilibriumOptions:
             raise FacesimError(f"contact stiffness: expected a positive number (N/mm^3), got {k}")
         object.__setattr__(self, "colliders", tuple(as_scene_collider(c, i) for i, c in enumerate(self.colliders)))
 
-    @property
-    def contact(self) -> bool:
-        """Whether any contact term is on."""
-        return bool(self.teeth_contact or self.lip_contact or self.colliders)
-
 
 def has_lips(model: FaceModel) -> bool:
     """Whether ``model`` has upper and lower lip surfaces (what lip contact needs)."""
@@ -140,10 +135,9 @@ class FaceSimulator:
                                  elems=self.elems)
         self.linear = make_linear_solver(self.options.newton.linear_solver)
         self._laplace = None
-        self._teeth = None   # (lip nodes, teeth SDFs with their bones, weights, margin), built on first use
+        self._teeth = None   # (lip nodes, teeth SDFs with their bones, weights, margin, rest overlap), built on first use
         self._lips = None    # the lip self-contact term, built on first use
         self._skin = None    # the skin-vs-external-colliders term (colliders posed per frame)
-        self._teeth_rest = None   # per lip node: min(0, rest signed distance to the teeth), mm
         if self.options.teeth_contact:
             self._teeth_setup()   # a model without teeth or lips is refused here, not in a frame
         if self.options.lip_contact:
@@ -200,17 +194,18 @@ class FaceSimulator:
             from facesim.contact.sdf import MeshSDF
 
             m = self.model
+            if not has_teeth(m):
+                raise FacesimError("teeth contact: the model has no teeth colliders or no lip surfaces")
             tris = np.concatenate([m.lip_upper, m.lip_lower])
             nodes = np.unique(tris)
             teeth = [(MeshSDF.from_mesh(s.vertices, s.faces, spacing=1.0, name=s.name), s.bone)
                      for s in m.colliders if "teeth" in s.name]
-            if not teeth or not len(nodes):
-                raise FacesimError("teeth contact: the model has no teeth colliders or no lip surfaces")
             rest = np.min([sdf.distance(m.X[nodes]) for sdf, _ in teeth], axis=0)
             # per node: where the rest mesh's lip envelope already dips into the teeth, the penalty
             # starts 0.05 mm below that node's own rest clearance (the rest shape stays an
             # equilibrium); everywhere else at the teeth surface
-            self._teeth = (nodes, teeth, node_areas(m.X, tris)[nodes], np.minimum(0.0, rest) - 0.05 * (rest < 0))
+            overlap = np.minimum(0.0, rest)   # per node, mm: <= 0, where the rest envelope is inside
+            self._teeth = (nodes, teeth, node_areas(m.X, tris)[nodes], overlap - 0.05 * (rest < 0), overlap)
         return self._teeth
 
     def teeth_term(self, controls: Controls, force: bool = False, transforms=None):
@@ -219,7 +214,7 @@ class FaceSimulator:
         overrides the controls' bones (the intermediate poses of a substep)."""
         if not (self.options.teeth_contact or force):
             return None
-        nodes, teeth, weights, margin = self._teeth_setup()
+        nodes, teeth, weights, margin, _ = self._teeth_setup()
         Hc, Hj = transforms if transforms is not None else self.bone_transforms(controls)
         from facesim.contact.sdf import Collider
 
@@ -284,11 +279,7 @@ class FaceSimulator:
         if has_teeth(self.model):
             # depth beyond each lip node's own rest overlap: the rest mesh's lip envelope can dip
             # into the teeth surface by a fraction of a mm (the penalty's zero sits below it too)
-            term = self.teeth_term(controls, force=True)
-            if self._teeth_rest is None:
-                self._teeth_rest = np.minimum(0.0, self.teeth_term(Controls(controls.a), force=True)
-                                              .signed_distances(self.model.X))
-            depth = self._teeth_rest - term.signed_distances(x)
+            depth = self._teeth_setup()[4] - self.teeth_term(controls, force=True).signed_distances(x)
             out["teeth_penetration_mm"] = float(max(0.0, depth.max(initial=0.0)))
         return out
 

@@ -122,9 +122,4 @@ def make_jaw_model(model, spec="rigid", model_path=None) -> JawModel:
     raise FacesimError(f"jaw model: expected one of {', '.join(JAW_MODELS + RIG_SPECS)}, got {spec!r}")
 
 
-def jaw_controls_shape(jaw: JawModel) -> tuple:
-    """Shape of one frame's jaw controls: ``(4, 4)`` for the rigid jaw, ``(n_params,)`` otherwise."""
-    return np.shape(jaw.rest)
-
-
-__all__ = ["JAW_MODELS", "JawModel", "RigidJaw", "jaw_controls_shape", "make_jaw_model"]
+__all__ = ["JAW_MODELS", "JawModel", "RigidJaw", "make_jaw_model"]
