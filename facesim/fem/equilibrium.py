@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facesim.budget import TIME_LIMIT, time_budget
 from facesim.constants import CONTACT_STIFFNESS
 from facesim.contact.penalty import ContactTerm, node_areas
 from facesim.contact.scene import as_scene_collider
@@ -342,8 +343,9 @@ class FaceSimulator:
         """Equilibrium positions for ``controls``, warm-started from ``x0 (n, 3)`` if given, with the
         set-up's contact posed at ``frame`` (scripted colliders) plus ``extra_terms``.
 
-        A solve that does not converge is returned with ``converged`` False (not raised); a linear
-        solver failing inside it raises :class:`~facesim.errors.SolverError`."""
+        A solve that does not converge is returned with ``converged`` False (not raised), also one
+        out of time (``newton_options.max_seconds`` or the enclosing :func:`facesim.budget.time_budget`:
+        ``stop_reason`` ``"time_limit"``); a linear solver failing inside it raises :class:`~facesim.errors.SolverError`."""
         controls = self._check(controls)
         t0 = time.perf_counter()
         if x0 is not None:
@@ -354,13 +356,14 @@ class FaceSimulator:
                 raise SolverError("equilibrium: the warm start has non-finite positions")
         options = newton_options or self.options.newton
         user_terms = tuple(extra_terms)
-        extra_terms = self.solve_terms(controls, frame, user_terms)
-        start = self.predict(controls, x0)
-        scale = self.force_scale(controls, extra_terms, start)
-        prob = self.problem(controls, start, extra_terms)
-        x, rep = newton(prob, options, scale, self.linear)
-        if not rep.converged and self.options.substeps > 1:
-            x, rep = self._substepped(controls, x0, options, scale, rep, user_terms, frame)
+        with time_budget(options.max_seconds):
+            extra_terms = self.solve_terms(controls, frame, user_terms)
+            start = self.predict(controls, x0)
+            scale = self.force_scale(controls, extra_terms, start)
+            prob = self.problem(controls, start, extra_terms)
+            x, rep = newton(prob, options, scale, self.linear)
+            if not rep.converged and self.options.substeps > 1 and rep.stop_reason != TIME_LIMIT:
+                x, rep = self._substepped(controls, x0, options, scale, rep, user_terms, frame)
         if not np.isfinite(x).all():
             rep.converged, rep.stop_reason = False, "non_finite"
         rep.seconds["total"] = time.perf_counter() - t0
@@ -389,6 +392,8 @@ class FaceSimulator:
             x, rep = newton(prob, options, scale, self.linear)
             iterations += rep.iterations
             residuals += rep.residuals
+            if rep.stop_reason == TIME_LIMIT:
+                break
         rep.iterations, rep.residuals = iterations, residuals
         rep.seconds["substeps"] = k
         return x, rep

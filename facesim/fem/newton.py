@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facesim.budget import TIME_LIMIT, check_seconds, expired
 from facesim.errors import FacesimError, SolverError
 from facesim.fem.linear import SOLVERS, make_linear_solver
 from facesim.fem.system import DofSystem
@@ -37,6 +38,8 @@ class NewtonOptions:
         ``False`` never does.
     step_fraction : fraction of the largest inversion-free step tried first.
     min_limited_step : below this the limit is ignored and the full step is tried first.
+    max_seconds : wall-clock budget of one equilibrium (s; None: none but the caller's, see
+        :mod:`facesim.budget`); a solve out of time stops with ``stop_reason`` ``"time_limit"``.
     """
 
     rtol: float = 1e-6
@@ -50,6 +53,7 @@ class NewtonOptions:
     min_limited_step: float = 0.05
     armijo: float = 1e-4
     max_backtracks: int = 30
+    max_seconds: float | None = None
 
     def __post_init__(self):
         if self.linear_solver not in SOLVERS:
@@ -58,6 +62,7 @@ class NewtonOptions:
             raise FacesimError(f"project: expected 'auto', True or False, got {self.project!r}")
         if not (self.rtol >= 0 and self.atol >= 0 and self.max_iterations >= 1):
             raise FacesimError("NewtonOptions: rtol, atol must be >= 0 and max_iterations >= 1")
+        check_seconds(self.max_seconds, "NewtonOptions.max_seconds")
 
 
 @dataclass
@@ -72,7 +77,7 @@ class SolveReport:
     projected: list = field(default_factory=list)
     linear_iterations: list = field(default_factory=list)
     force_scale: float = 1.0
-    stop_reason: str = ""   # "converged", "iteration_limit" or "line_search_failed"
+    stop_reason: str = ""   # "converged", "iteration_limit", "line_search_failed" or "time_limit"
     seconds: dict = field(default_factory=dict)
 
     @property
@@ -151,7 +156,9 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
     """Minimise the problem's energy from its starting guess; returns ``(x (n, 3), report)``.
 
     ``linear`` may be a solver from :func:`~facesim.fem.linear.make_linear_solver` to reuse
-    (an AMG hierarchy carries over between solves of similar systems)."""
+    (an AMG hierarchy carries over between solves of similar systems). Bounded by
+    ``options.max_iterations`` and by the enclosing :func:`facesim.budget.time_budget`, checked
+    before every iteration."""
     t_start = time.perf_counter()
     sysm = problem.system
     linear = linear or make_linear_solver(options.linear_solver)
@@ -170,6 +177,9 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
     # examples/02 by 3% per step, 300 steps from 1e-2 to 1e-6)
     true_below = options.true_tangent_below
     while rep.residuals[-1] > tol and rep.iterations < options.max_iterations:
+        if expired():   # the frame's wall-clock budget (facesim.budget): stop, flagged
+            rep.stop_reason = TIME_LIMIT
+            break
         rel = rep.residuals[-1] / max(force_scale, 1e-300)
         project = options.project is True or (options.project == "auto" and
                                                not (allow_true and rel < true_below))

@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facesim.budget import TIME_LIMIT, check_seconds, expired, time_budget
 from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.fem.linear import single_blas_thread
@@ -61,7 +62,7 @@ from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, equilibr
 
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 #: why a fit stopped (``FitReport.stop_reason``): only ``"converged"`` is a converged frame
-STOP_REASONS = ("converged", "step_limit", "line_search_failed", "equilibrium_failed")
+STOP_REASONS = ("converged", "step_limit", "line_search_failed", "equilibrium_failed", TIME_LIMIT)
 ARMIJO = 1e-4              # sufficient decrease of a backtracking step, times its first-order decrease
 EXTRAPOLATE_ABOVE = 1.03   # a kept full step is extended when the markers' response says it should be longer
 EXTEND_TRIALS = 2          # by at most this many more equilibria
@@ -84,8 +85,10 @@ class FitOptions:
     tangent first; resolution : also stop when the next step would move the controls by less than
     this many standard deviations of their estimate under marker noise ``noise``; jacobian_rtol : CG
     tolerance of each Jacobian column when it is solved iteratively (above ``DIRECT_BELOW`` unknowns;
-    a Gauss-Newton step needs a few digits, and the secant updates are approximate anyway). See the
-    module doc."""
+    a Gauss-Newton step needs a few digits, and the secant updates are approximate anyway);
+    max_seconds : wall-clock budget of the fit (s; None: none but the caller's, see
+    :mod:`facesim.budget`), after which it stops with ``stop_reason`` ``"time_limit"`` at its last
+    accepted step. See the module doc."""
 
     max_steps: int = 5
     tolerance: float = 1e-3
@@ -105,6 +108,7 @@ class FitOptions:
     chord: bool = True
     resolution: float = 1.5
     jacobian_rtol: float = 1e-6   # CG tolerance per Jacobian column (AMG path; direct solves are exact)
+    max_seconds: float | None = None
 
     def __post_init__(self):
         if not (self.growth > 1.0 and self.final_ratio > 0 and self.start_ratio > 0 and self.noise > 0):
@@ -117,6 +121,7 @@ class FitOptions:
                 and self.resolution >= 0 and 0 < self.jacobian_rtol < 1):
             raise FacesimError("FitOptions: 0 < accept_ratio < 1, jacobian_max_age >= 0, jacobian_drift > 0, "
                                "resolution >= 0, 0 < jacobian_rtol < 1")
+        check_seconds(self.max_seconds, "FitOptions.max_seconds")
 
 
 @dataclass
@@ -163,13 +168,17 @@ class FitReport:
 @dataclass
 class Fit:
     """``jacobian``: at the result (exact or secant-updated; pass it to the next frame's
-    :func:`fit_frame`), None when the last step asked for a new evaluation."""
+    :func:`fit_frame`), None when the last step asked for a new evaluation. ``equilibrium``: ``x``
+    is the equilibrium of ``controls``; False when the fit found none to start from
+    (``"equilibrium_failed"``, or ``"time_limit"`` before the first equilibrium), then ``x`` is the
+    start's attached positions and no warm start for another frame."""
 
     controls: Controls
     x: np.ndarray
     markers: np.ndarray
     report: FitReport
     jacobian: EquilibriumJacobian | None = None
+    equilibrium: bool = True
 
 
 class _Bounds:
@@ -286,9 +295,14 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     lowered the objective, ``"equilibrium_failed"`` when the starting controls had no equilibrium
     -- then the fit is returned at its start with ``x`` the last iterate) and the Jacobian at the
     result for the next frame."""
-    with single_blas_thread():   # vector-sized BLAS work only: threads add contention (fem.linear)
-        return _fit_frame(sim, targets, controls, x0, space, options or FitOptions(), weights, extra_terms,
+    options = options or FitOptions()
+    with single_blas_thread(), time_budget(options.max_seconds):   # vector-sized BLAS work: threads contend
+        return _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                           jacobian, screen, frame)
+
+
+class _OutOfTime(Exception):
+    """The fit's wall-clock budget ran out (raised between equilibria, caught by the fit)."""
 
 
 def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian, screen, frame) -> Fit:
@@ -323,7 +337,10 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     resolution = 0.5 * (options.resolution * options.noise) ** 2
 
     def solve(ctrl, warm, tangent):
-        """Equilibrium of ``ctrl`` from ``warm``: chord iterations on ``tangent`` first, else Newton."""
+        """Equilibrium of ``ctrl`` from ``warm``: chord iterations on ``tangent`` first, else Newton.
+        Raises :class:`_OutOfTime` when the fit's budget has run out (before, or during the solve)."""
+        if expired():
+            raise _OutOfTime
         if tangent is not None and options.chord:
             xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, tangent, extra_terms, frame=frame)
             rep.newton_iterations += its
@@ -342,6 +359,8 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         rep.equilibria += 1
         rep.newton_iterations += eq.iterations
         rep.linear_solves += len(eq.report.linear_iterations)
+        if eq.report.stop_reason == TIME_LIMIT:
+            raise _OutOfTime
         return eq.x if eq.converged else None
 
     def motion(x, start):
@@ -353,6 +372,8 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         return 0.5 * float(r @ (w3 * r)) + mu * bounds.value_grad_hess(c)[0]
 
     def exact_jacobian(c, x):
+        if expired():
+            raise _OutOfTime
         t = time.perf_counter()
         J = equilibrium_jacobian(sim, space.apply(base, c), x, space, extra_terms=extra_terms,
                                  linear_solver=options.linear_solver, rtol=options.jacobian_rtol, frame=frame)
@@ -376,16 +397,21 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         return dc, mu, F, predicted, slope
 
     t = time.perf_counter()
-    x = solve(controls, x0, None) if x0 is None or not np.isfinite(x0).all() else np.asarray(x0, dtype=np.float64)
+    out_of_time = False
+    try:
+        x = solve(controls, x0, None) if x0 is None or not np.isfinite(x0).all() else np.asarray(x0, np.float64)
+    except _OutOfTime:
+        x, out_of_time = None, True
     clock["equilibria"] += time.perf_counter() - t
     if x is None:   # no equilibrium to start from: the frame failed, reported as such
-        rep.stop_reason = "equilibrium_failed"
-        rep.error = rep.error or "the starting controls have no converged equilibrium"
+        rep.stop_reason = TIME_LIMIT if out_of_time else "equilibrium_failed"
+        rep.error = rep.error or ("the time budget ran out before the starting equilibrium was found" if out_of_time
+                                  else "the starting controls have no converged equilibrium")
         x = sim.attached_positions(controls, x0 if x0 is not None and np.isfinite(x0).all() else None)
         P = model.marker_positions(x)
         rep.marker_rms = float(np.sqrt(np.mean(np.sum((P[keep] - targets[keep]) ** 2, axis=1))))
         rep.seconds = time.perf_counter() - t0
-        return Fit(controls, x, P, rep, None)
+        return Fit(controls, x, P, rep, None, equilibrium=False)
     c = space.vector(controls)
     base = controls
     mu = 0.0
@@ -400,78 +426,81 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             np.abs(dc).max() < options.step_tolerance
 
     stop = ""
-    while rep.gn_steps < options.max_steps:
-        if J is None or J.age > options.jacobian_max_age:
-            J = exact_jacobian(c, x)
-        dc, mu, F, predicted, slope = linear_step(J, c, x)
-        if screen is not None:
-            dropped = [j for j in screen(P + (J.dP @ dc).reshape(-1, 3)) if keep[j]]
-            screen = None
-            if dropped and keep.sum() - len(dropped) >= 3:
-                rep.screened = sorted(dropped)
-                keep = keep.copy()
-                keep[dropped] = False
-                w3, rows, noise_energy = kept(keep)
-                rep.objective[0] = objective(c, x, 0.0)
-                dc, mu, F, predicted, slope = linear_step(J, c, x)
-        if small(dc, F, predicted):
-            stop = "converged"
-            break
-        # the full step first, its equilibrium warm-started from the first-order prediction
-        t = time.perf_counter()
-        x1 = solve(space.apply(base, c + dc), J.predict(dc), J.tangent)
-        F1 = math.inf if x1 is None else objective(c + dc, x1, mu)
-        clock["equilibria"] += time.perf_counter() - t
-        rep.ratios.append((F - F1) / predicted)
-        if options.line_search == "ratio" and F - F1 >= options.accept_ratio * predicted:
-            rep.full_steps += 1
+    try:
+        while rep.gn_steps < options.max_steps:
+            if J is None or J.age > options.jacobian_max_age:
+                J = exact_jacobian(c, x)
+            dc, mu, F, predicted, slope = linear_step(J, c, x)
+            if screen is not None:
+                dropped = [j for j in screen(P + (J.dP @ dc).reshape(-1, 3)) if keep[j]]
+                screen = None
+                if dropped and keep.sum() - len(dropped) >= 3:
+                    rep.screened = sorted(dropped)
+                    keep = keep.copy()
+                    keep[dropped] = False
+                    w3, rows, noise_energy = kept(keep)
+                    rep.objective[0] = objective(c, x, 0.0)
+                    dc, mu, F, predicted, slope = linear_step(J, c, x)
+            if small(dc, F, predicted):
+                stop = "converged"
+                break
+            # the full step first, its equilibrium warm-started from the first-order prediction
             t = time.perf_counter()
-            alpha, F_new, x_new = _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options,
-                                          (J.dP @ dc)[rows], functools.partial(motion, start=P), w3, J.tangent)
-            clock["line_search"] += time.perf_counter() - t
-        elif J.age > 0:   # the model of an updated Jacobian failed: evaluate it here and step again
-            J = None
-            continue
-        else:
+            x1 = solve(space.apply(base, c + dc), J.predict(dc), J.tangent)
+            F1 = math.inf if x1 is None else objective(c + dc, x1, mu)
+            clock["equilibria"] += time.perf_counter() - t
+            rep.ratios.append((F - F1) / predicted)
+            if options.line_search == "ratio" and F - F1 >= options.accept_ratio * predicted:
+                rep.full_steps += 1
+                t = time.perf_counter()
+                alpha, F_new, x_new = _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options,
+                                              (J.dP @ dc)[rows], functools.partial(motion, start=P), w3, J.tangent)
+                clock["line_search"] += time.perf_counter() - t
+            elif J.age > 0:   # the model of an updated Jacobian failed: evaluate it here and step again
+                J = None
+                continue
+            else:
+                t = time.perf_counter()
+                cache = {0.0: (F, x), 1.0: (F1, x1)}
+                alpha, F_new, x_new = None, math.inf, None
+                if options.line_search == "ratio" and x1 is not None and F1 - F - slope > 0 and slope < 0:
+                    # the full step failed: one backtracking trial at the minimum of the parabola through
+                    # F(0), F'(0) and F(1), kept on sufficient (Armijo) decrease
+                    short = min(max(-slope / (2.0 * (F1 - F - slope)), 0.1), 0.9)
+                    xs = solve(space.apply(base, c + short * dc), J.predict(short * dc), J.tangent)
+                    Fs = math.inf if xs is None else objective(c + short * dc, xs, mu)
+                    cache[short] = (Fs, xs)
+                    if Fs <= F + ARMIJO * short * slope:
+                        alpha, F_new, x_new = short, Fs, xs
+                if alpha is None:   # golden section: over [0, 1] after a failed full step, else [0, max_step]
+                    hi = 1.0 if options.line_search == "ratio" else options.max_step
+                    alpha, F_new, x_new = _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache,
+                                                          hi)
+                clock["line_search"] += time.perf_counter() - t
+            rep.gn_steps += 1
+            rep.step_lengths.append(alpha)
+            if alpha == 0.0 or x_new is None:
+                stop = "line_search_failed"   # no step length lowered the objective
+                break
             t = time.perf_counter()
-            cache = {0.0: (F, x), 1.0: (F1, x1)}
-            alpha, F_new, x_new = None, math.inf, None
-            if options.line_search == "ratio" and x1 is not None and F1 - F - slope > 0 and slope < 0:
-                # the full step failed: one backtracking trial at the minimum of the parabola through
-                # F(0), F'(0) and F(1), kept on sufficient (Armijo) decrease
-                short = min(max(-slope / (2.0 * (F1 - F - slope)), 0.1), 0.9)
-                xs = solve(space.apply(base, c + short * dc), J.predict(short * dc), J.tangent)
-                Fs = math.inf if xs is None else objective(c + short * dc, xs, mu)
-                cache[short] = (Fs, xs)
-                if Fs <= F + ARMIJO * short * slope:
-                    alpha, F_new, x_new = short, Fs, xs
-            if alpha is None:   # golden section: over [0, 1] after a failed full step, else [0, max_step]
-                hi = 1.0 if options.line_search == "ratio" else options.max_step
-                alpha, F_new, x_new = _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache,
-                                                      hi)
-            clock["line_search"] += time.perf_counter() - t
-        rep.gn_steps += 1
-        rep.step_lengths.append(alpha)
-        if alpha == 0.0 or x_new is None:
-            stop = "line_search_failed"   # no step length lowered the objective
-            break
-        t = time.perf_counter()
-        step = alpha * dc
-        P_new = model.marker_positions(x_new)
-        moved = (P_new - P).ravel()
-        linear = J.dP @ step
-        mismatch = float(np.linalg.norm(moved - linear)) / max(float(np.linalg.norm(linear)), 1e-300)
-        J = J.secant_update(step, x_new, moved, space.apply(base, c + step))
-        rep.secant_updates += 1
-        clock["jacobian"] += time.perf_counter() - t
-        improvement = (F - F_new) / max(F, 1e-300)
-        c, x, F, P = c + step, x_new, F_new, P_new
-        rep.objective.append(F)
-        if improvement < options.tolerance or np.abs(step).max() < options.step_tolerance:
-            stop = "converged"
-            break
-        if mismatch > options.jacobian_drift:
-            J = None
+            step = alpha * dc
+            P_new = model.marker_positions(x_new)
+            moved = (P_new - P).ravel()
+            linear = J.dP @ step
+            mismatch = float(np.linalg.norm(moved - linear)) / max(float(np.linalg.norm(linear)), 1e-300)
+            J = J.secant_update(step, x_new, moved, space.apply(base, c + step))
+            rep.secant_updates += 1
+            clock["jacobian"] += time.perf_counter() - t
+            improvement = (F - F_new) / max(F, 1e-300)
+            c, x, F, P = c + step, x_new, F_new, P_new
+            rep.objective.append(F)
+            if improvement < options.tolerance or np.abs(step).max() < options.step_tolerance:
+                stop = "converged"
+                break
+            if mismatch > options.jacobian_drift:
+                J = None
+    except _OutOfTime:   # the budget ran out: the fit stays at its last accepted step
+        stop = TIME_LIMIT
     if not stop:   # out of steps: converged if the (secant-updated) Jacobian predicts no worthwhile step
         stop = "step_limit"
         if J is not None and J.age <= options.jacobian_max_age:
