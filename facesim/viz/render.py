@@ -44,6 +44,8 @@ GUM_COLOUR = "#c8707a"
 OTHER_COLLIDER_COLOUR = "#b8bcc4"
 MARKER_COLOUR = "#00d0ff"
 HEAD_MARKER_COLOUR = "#ffd21f"
+#: Smallest side of the off-screen 3D view: smaller pictures are rendered at this size and shrunk.
+MIN_RENDER_PX = 160
 EXTRA_COLOUR = "#5b8fd9"   # external colliders (spheres, capsules, meshes of a scene)
 BACKGROUND = ("#16181d", "#3b404c")  # bottom, top of the gradient
 TEXT_COLOUR = "#f0f0f0"
@@ -226,7 +228,13 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
         raise FacesimError(f"x: expected node positions of shape {model.X.shape}, got {points.shape}")
     if not 0.0 <= skin_opacity <= 1.0:
         raise FacesimError(f"skin_opacity: expected a value in [0, 1], got {skin_opacity}")
-    width, height = (int(v) for v in size)
+    out_size = tuple(int(v) for v in size)
+    if len(out_size) != 2 or min(out_size) < 1:
+        raise FacesimError(f"size: expected (width, height) in pixels >= 1, got {tuple(size)}")
+    # VTK cannot make an off-screen surface for tiny windows (EGL fails below ~100 px, and a window
+    # narrower than its legend panel aborts): small pictures are rendered at MIN_RENDER_PX and shrunk
+    scale = max(1.0, MIN_RENDER_PX / min(out_size))
+    width, height = (int(round(v * scale)) for v in out_size)
     plotter = pyvista_offscreen().Plotter(off_screen=True, window_size=(width, height))
     try:
         plotter.set_background(BACKGROUND[0], top=BACKGROUND[1])
@@ -255,7 +263,12 @@ def render_image(model: FaceModel, view: str = "front", show=DEFAULT_SHOW, skin_
         image = plotter.screenshot(None, return_img=True)
     finally:
         plotter.close()
-    return annotate(np.ascontiguousarray(image[..., :3]), entries, title, (width, height))
+    image = annotate(np.ascontiguousarray(image[..., :3]), entries, title, (width, height))
+    if (width, height) != out_size:
+        from PIL import Image
+
+        image = np.asarray(Image.fromarray(image).resize(out_size, Image.Resampling.LANCZOS))
+    return image
 
 
 def legend_layout(entries, size):
@@ -275,6 +288,8 @@ def legend_layout(entries, size):
         px -= 1
         font = ImageFont.load_default(size=px)
         text_w = max(draw.textlength(t, font=font) for t in labels)
+    if 4 * (px // 2) + px + text_w > 0.4 * w:   # no room for a legible legend: none
+        return font, px, 0
     return font, px, int(4 * (px // 2) + px + text_w)
 
 
@@ -291,6 +306,7 @@ def annotate(image: np.ndarray, entries, title: str | None, size) -> np.ndarray:
     from PIL import Image, ImageDraw, ImageFont
 
     font, px, panel = legend_layout(entries, size)
+    entries = entries if panel else []
     canvas = Image.new("RGB", (w, h), BACKGROUND[0])
     canvas.paste(Image.fromarray(image), (0, 0))
     draw = ImageDraw.Draw(canvas)

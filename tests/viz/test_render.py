@@ -152,3 +152,23 @@ def test_fixed_camera_shows_motion_that_a_fitted_camera_hides(box_model):
     moved = centre(blue_mask(render_image(box_model, "front", x=x, frame_on=box_model.X, **kw)))
     assert moved[0] > rest[0] + 0.05          # with a fixed camera the face moves across the picture
     assert abs(fitted[0] - fitted_rest[0]) < 0.02    # a camera fitted to each frame follows it
+
+
+@pytest.mark.parametrize("size", ["16x16", "64x64", "40x300"])
+def test_tiny_pictures_of_a_full_model_render(size, tmp_path):
+    """A model with a long muscle legend at picture sizes where VTK cannot make its surface (below
+    ~100 px) or the legend is wider than the picture: rendered large and shrunk, the legend dropped
+    where it cannot be read; a separate process, since VTK aborts the process when it fails."""
+    import subprocess
+    import sys
+
+    from facesim._files import MESHES
+
+    out = tmp_path / "tiny.png"
+    run = subprocess.run([sys.executable, "-m", "facesim", "model", "render", str(MESHES / "face_coarse.npz"),
+                          "-o", str(out), "--size", size], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-500:]
+    assert "ERR|" not in run.stderr and "Traceback" not in run.stderr
+    w, h = (int(v) for v in size.split("x"))
+    image = np.asarray(Image.open(out))
+    assert image.shape[:2] == (h, w) and image.std() > 5   # not blank
