@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from facesim.controls import Controls
+from facesim.contact.scene import as_scene_collider
 from facesim.errors import FacesimError
 
 JAW_ROTATION_FACTOR = 1.5
@@ -43,14 +43,14 @@ def _angle(R: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def check_jaw(sim, frames, jaw_controls, source: str) -> None:
-    """Refuse jaw controls (one per frame of ``frames``, in the simulator's jaw model) whose
-    mandible pose is beyond :func:`jaw_limits`; ``source`` names where they came from."""
-    model = sim.model
+def check_jaw(model, jaw_model, frames, jaw_controls, source: str) -> None:
+    """Refuse jaw controls (one per frame of ``frames``, in ``jaw_model``, a
+    :class:`~facesim.kinematics.jaw_models.JawModel`) whose mandible pose is beyond
+    :func:`jaw_limits`; ``source`` names where they came from."""
     max_angle, max_shift = jaw_limits(model)
     mid = model.jaw.midpoint
     for k, q in zip(frames, jaw_controls):
-        T = np.asarray(sim.jaw_model.transform(q), dtype=np.float64)
+        T = np.asarray(jaw_model.transform(q), dtype=np.float64)
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise FacesimError(f"{source}: frame {int(k)}: the jaw pose is not a finite 4x4 transform")
         angle = _angle(T[:3, :3])
@@ -65,25 +65,26 @@ def check_jaw(sim, frames, jaw_controls, source: str) -> None:
                                f"{model.jaw.track_length:.3g} mm, plus {JAW_SHIFT_MARGIN:g} mm)")
 
 
-def check_colliders(sim, frames, controls=None, source: str = "--collider") -> None:
-    """Refuse a set-up whose colliders (``sim.options.colliders``) reach bone-attached flesh or
-    hold most of the skin at any of ``frames``, with the bones of ``controls`` (one
-    :class:`Controls` per frame; None: the rest pose)."""
-    scene = sim.options.colliders
+def check_colliders(model, colliders, frames, jaw_model=None, jaw_controls=None, source: str = "--collider") -> None:
+    """Refuse ``colliders`` (scene colliders, colliders or shapes, as
+    :class:`~facesim.fem.equilibrium.EquilibriumOptions` takes them) that reach bone-attached flesh
+    or hold most of the skin at any of ``frames``, with the mandible of ``jaw_controls`` (one per
+    frame, in ``jaw_model``; None: at rest) and the skull at rest."""
+    scene = [as_scene_collider(c, i) for i, c in enumerate(colliders)]
     if not scene:
         return
-    model = sim.model
     # the bone interface of the simulated flesh (nodes only in unsimulated tets move with the skull
     # whatever the colliders do, and carry no force)
     attached = np.intersect1d(np.union1d(model.cranium_nodes, model.jaw_nodes), model.tets[model.simulated])
     skin = np.unique(model.skin)
-    rest = Controls(np.zeros(model.n_muscles), jaw=sim.jaw_model.rest if sim.jaw_model.n_params else None)
     frames = np.asarray(frames).ravel()
-    if controls is None:
-        controls = [rest] * len(frames)
-    for k, c in zip(frames, controls):
-        x = sim.attached_positions(c)
-        for spec, collider in zip(scene, sim.posed_colliders(c, float(k))):
+    Hc = np.eye(4)
+    for i, k in enumerate(frames):
+        Hj = np.eye(4) if jaw_controls is None else np.asarray(jaw_model.transform(jaw_controls[i]), np.float64)
+        x = model.X.copy()
+        x[model.jaw_nodes] = model.X[model.jaw_nodes] @ Hj[:3, :3].T + Hj[:3, 3]
+        for spec in scene:
+            collider = spec.at(float(k), Hc, Hj)
             d_attached = collider.distance(x[attached])
             deepest = int(np.argmin(d_attached)) if len(attached) else -1
             if deepest >= 0 and not d_attached[deepest] >= -ATTACHED_DEPTH:
