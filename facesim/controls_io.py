@@ -8,7 +8,11 @@ and ``facesim solve-mocap`` writes them.
 * a solve-mocap folder's ``activations.csv`` and ``jaw.csv`` read back as the controls of each
   frame (:func:`read_solution`).
 
-Every error is one line naming the file, the line and the column.
+Every error is one line naming the file, the line and the column (:mod:`facesim._csv`): besides
+the checks below, frame numbers that are not integers from 0 to 2**53-1 or do not increase, rows
+with too few or too many fields (a file cut short), values that are not finite numbers (``inf``,
+``1e400``, ``nan``, ``12.`` cut short), duplicate or empty column names, and files that are not
+UTF-8 text (binary, UTF-16) are refused.
 """
 
 from __future__ import annotations
@@ -35,7 +39,9 @@ def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
     at 0. Returns ``frames (F,) int64`` (increasing) and ``A (F, n_muscles) float64`` in the order
     of ``muscle_names``. Raises a one-line :class:`FacesimError` naming the file, line and
     column for a missing or empty file, a missing ``frame`` column, an unknown muscle (with the
-    closest names), a duplicate column, a non-numeric value or one outside [0, 1].
+    closest names), a duplicate column, a value that is not a finite number or is outside [0, 1],
+    a bad frame number (see the module). A header of ``frame`` alone is accepted: every muscle
+    at rest in each frame (a jaw-only sequence).
     """
     muscle_names = tuple(muscle_names)
     table = read_table(path, "activations file", example="frame," + ",".join(muscle_names[:2]) + ",...")

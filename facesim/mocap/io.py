@@ -244,7 +244,7 @@ def read_trc(path) -> MarkerData:
     if units not in UNITS_MM:
         raise FacesimError(f"{path}: line 3: Units {meta['Units']!r}, expected one of {', '.join(UNITS_MM)}")
     n_markers = _header_count(path, meta, "NumMarkers", 1)
-    n_frames = _header_count(path, meta, "NumFrames", 1) if "NumFrames" in meta else None
+    n_frames = _header_count(path, meta, "NumFrames", 0) if "NumFrames" in meta else None
     rate = parse_number(meta["DataRate"])
     if rate is None or not (math.isfinite(rate) and rate > 0):
         raise FacesimError(f"{path}: line 3: DataRate {meta['DataRate']!r}; expected a frame rate > 0 (Hz)")
@@ -493,8 +493,7 @@ def check_capture_scale(data: MarkerData, model_spread_mm: float | None, path,
     far = np.argwhere(np.nan_to_num(np.abs(data.P), nan=0.0).max(axis=2) > MAX_POSITION_MM)
     if lo <= ratio <= hi and not len(far):
         return
-    source = "--units" if units_given else ("the file's unit" if data.units and data.units != "mm" else "")
-    read_as = f"read as {unit}" + (f", {source}" if source else "")
+    read_as = f"read as {unit}" + (", --units" if units_given else "")
     if len(far):
         f, j = far[0]
         far_away = (f"frame {data.frames[f]}, marker {data.names[j]!r} has a coordinate of "
