@@ -42,8 +42,10 @@ def atomic_write(path, write: Callable[[Path], object]) -> Path:
     except OSError as exc:
         raise FacesimError(f"{path}: cannot write ({exc.strerror or exc})") from None
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:   # cleaning up must not hide the error that made the mess
+            pass
     return path
 
 

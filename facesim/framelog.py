@@ -2,9 +2,9 @@
 
 A frame log is a CSV file with a header line and one line per finished frame, the frame number
 first. :class:`FrameLog` writes it: the file is first rewritten atomically with the header and the
-lines kept from an earlier run, then every :meth:`FrameLog.add` appends one complete line, flushed
-and ``fsync``-ed, so the file on disk always ends with a whole frame (or a line cut by a crash,
-which the reader drops). :func:`read_lines` resumes: the complete, well-formed lines of an earlier
+lines kept from an earlier run, then every :meth:`FrameLog.add` appends one complete line, synced
+to disk, so the file on disk always ends with a whole frame (or a line cut by a crash, which the
+reader drops; a line cut by a failed write is removed at once). :func:`read_lines` resumes: the complete, well-formed lines of an earlier
 log by frame number. :func:`read_log` reads a finished log's numbers.
 
 ``facesim simulate`` writes ``frames.csv`` and ``markers.csv`` this way (:mod:`facesim.simulate`),
@@ -64,22 +64,43 @@ def read_lines(path, header: str, n_fields: int | None = None) -> dict[int, str]
 
 class FrameLog:
     """An append-only log at ``path``: rewritten (atomically) as ``header`` and ``lines``, then kept
-    open; each :meth:`add` writes one complete line and flushes it to disk. A context manager."""
+    open; each :meth:`add` writes one complete line and syncs it to disk. A context manager.
+
+    Writes are unbuffered (``os.write`` on an ``O_APPEND`` descriptor): a failed write (a full disk,
+    a file size limit) is cut back to the last complete line and raised as a one-line
+    :class:`FacesimError` naming the file, and closing the log never writes (so it cannot fail
+    again and hide the first error)."""
 
     def __init__(self, path, header: str, lines=()):
         self.path = Path(path)
         text = header + "".join(lines)
         atomic_write(self.path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-        self.file = open(self.path, "a", encoding="utf-8")  # noqa: SIM115  (kept open across frames)
+        try:
+            self.fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+            self.size = os.fstat(self.fd).st_size
+        except OSError as exc:
+            raise FacesimError(f"{self.path}: cannot open for appending ({exc.strerror or exc})") from None
 
     def add(self, line: str) -> None:
         """Append ``line`` (one complete line, with its newline) and sync it to disk."""
-        self.file.write(line)
-        self.file.flush()
-        os.fsync(self.file.fileno())
+        data = memoryview(line.encode("utf-8"))
+        try:
+            written = 0
+            while written < len(data):   # a write may be short (a size limit reached midway)
+                written += os.write(self.fd, data[written:])
+            os.fsync(self.fd)
+        except OSError as exc:
+            try:   # no cut line left for a later append to run into
+                os.ftruncate(self.fd, self.size)
+            except OSError:
+                pass   # a cut line has no newline: read_lines drops it
+            raise FacesimError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+        self.size += len(data)
 
     def close(self) -> None:
-        self.file.close()
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
 
     def __enter__(self) -> FrameLog:
         return self

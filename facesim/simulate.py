@@ -14,18 +14,24 @@ are written frame by frame into ``OUT/``:
 
 Crash safety: per-frame files are written to a temporary file and renamed; ``frames.csv`` and
 ``markers.csv`` are append-only logs (:mod:`facesim.framelog`), one complete line per write,
-flushed to disk. A frame is complete once its state file and both log rows exist (the
+synced to disk. A frame is complete once its state file and both log rows exist (the
 ``frames.csv`` row is written last); ``resume`` keeps the longest run of complete frames at the
-start of the sequence whose stored controls equal the inputs, redraws missing skin or PNG files of
-those from their state, and computes the rest. A frame that does not converge is kept on disk for
-inspection but flagged (``converged`` 0 in ``frames.csv``, listed in ``report.json``), its markers
-are written as NaN (missing), and the next frame starts from the last converged one.
+start of the sequence, redraws missing skin or PNG files of those from their state, and computes
+the rest, warm-started from the last converged state on disk (the full-precision ``x``), so a
+resumed run writes what an uninterrupted one would. A frame that does not converge is kept on disk
+for inspection but flagged (``converged`` 0 in ``frames.csv``, listed in ``report.json``), its
+markers are written as NaN (missing), and the next frame starts from the last converged one.
+
+The folder (:class:`facesim.runfolder.RunFolder`): one run at a time (``OUT/.lock``); a folder
+holding a run needs ``resume`` or ``overwrite``; ``OUT/run.json`` records the inputs (model,
+activations, jaw, frames, jaw model, solver and contact options), and a resume with other inputs
+is refused, naming them. Render options (``render``, ``video``, ``view``, ``size``, ``fps``) are
+not inputs: a resume may add pictures to a finished run.
 """
 
 from __future__ import annotations
 
 import csv
-import hashlib
 import json
 import math
 import re
@@ -42,6 +48,7 @@ from facesim.errors import FacesimError
 from facesim.fem.newton import NewtonOptions
 from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.model import FaceModel
+from facesim.runfolder import RunFolder, describe, fingerprint, finish, parts
 
 FRAME_LOG_COLUMNS = ("frame", "converged", "stop_reason", "iterations", "relative_residual", "residual_N", "seconds",
                      "linear_iterations", "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm",
@@ -108,15 +115,6 @@ class _Out:
                 for p in folder.iterdir():
                     if _FRAME_FILE.match(p.name):
                         p.unlink()
-
-
-def _fingerprint(model: FaceModel) -> str:
-    """Short hash of what the results depend on in the model (mesh, muscles, markers)."""
-    h = hashlib.sha1()
-    for arr in (model.X, model.tets, model.muscles.sigma_max, model.cranium_nodes, model.jaw_nodes):
-        h.update(np.ascontiguousarray(arr).tobytes())
-    h.update("\n".join(model.muscles.names + model.markers.names).encode())
-    return h.hexdigest()[:16]
 
 
 def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str) -> None:
@@ -211,25 +209,11 @@ def _load_x(out: _Out, k: int, model: FaceModel) -> np.ndarray:
     return x
 
 
-def _prepare_folder(out: _Out, fingerprint: str, resume: bool, overwrite: bool) -> None:
-    """Refuse to mix runs: a folder holding a run needs ``resume`` (of the same model) or ``overwrite``."""
-    if out.root.exists() and not out.root.is_dir():
-        raise FacesimError(f"{out.root}: expected an output folder, found a file")
-    if resume and overwrite:
-        raise FacesimError("simulate: resume and overwrite exclude each other")
-    if out.holds_a_run() and not resume:
-        if not overwrite:
-            raise FacesimError(f"{out.root}: holds the results of an earlier run; use --resume to continue it, "
-                               "--overwrite to replace it, or another folder")
-        out.clear()
-    if resume and out.report.is_file():
-        try:
-            old = json.loads(out.report.read_text())
-        except (OSError, ValueError):
-            old = {}
-        if old.get("model_fingerprint") not in (None, fingerprint):
-            raise FacesimError(f"{out.report}: the run in this folder used another model "
-                               f"({old.get('model')}); resume it with that model or use --overwrite")
+def _inputs(model: FaceModel, A, frames, J, jaw_model, setup) -> dict:
+    """The run record's inputs (:mod:`facesim.runfolder`): what the results depend on."""
+    return {"model": parts(model), "activations": fingerprint(A), "frames": fingerprint(frames),
+            "jaw": fingerprint(np.ascontiguousarray(J)),
+            "jaw_model": {"name": jaw_model.name, "content": fingerprint(jaw_model)}, "simulator": describe(setup)}
 
 
 def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, caption: str = "",
@@ -266,21 +250,18 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     colliders : external colliders (see :class:`~facesim.session.Simulation`); scripted ones are
         posed at each frame number.
     options : :class:`SimulateOptions`.
-    resume : continue a run in ``out_dir`` after its last complete frame.
+    resume : continue a run in ``out_dir`` after its last complete frame (a run of the same inputs:
+        another model, other controls, frames or solver options are refused, naming them).
     overwrite : remove the results of an earlier run in ``out_dir`` first. Without ``resume`` or
-        ``overwrite`` a folder holding a run is an error.
+        ``overwrite`` a folder holding a run is an error, as is a folder another run is writing into.
     progress : tqdm bar over frames on stderr.
     info : extra entries for ``report.json`` (e.g. the input file names).
 
     Returns the summary written to ``report.json``: frame counts, converged count, the frames
     that did not converge, seconds, options and output paths.
     """
-    from tqdm import tqdm
-
-    from facesim.controls import Controls
     from facesim.fem.equilibrium import EquilibriumOptions
     from facesim.kinematics.jaw_models import make_jaw_model
-    from facesim.mocap.io import marker_csv_header, marker_csv_line, read_markers_csv, write_trc
     from facesim.session import Simulation
 
     options = options or SimulateOptions()
@@ -303,8 +284,23 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         if options.view not in VIEWS:
             raise FacesimError(f"view: unknown view {options.view!r}; expected one of {', '.join(VIEWS)}")
     out = _Out(out_dir)
-    fingerprint = _fingerprint(model)
-    _prepare_folder(out, fingerprint, resume, overwrite)
+    folder = RunFolder(out.root, "simulate", resume, overwrite)
+    with folder:   # one run at a time in the folder, from here until report.json is written
+        folder.start(_inputs(model, A, frames, J, jaw_model, setup), out.holds_a_run, out.clear,
+                     info={**(info or {}), "model_fingerprint": fingerprint(model)})
+        return _run(out, model, A, frames, J, jaw is not None, jaw_model, colliders, options, resume, progress,
+                    info, simulation)
+
+
+def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, colliders, options: SimulateOptions,
+         resume: bool, progress: bool, info: dict | None, simulation) -> dict:
+    """The frames of :func:`simulate` in a claimed folder: the reused ones redrawn where needed, the
+    others solved and written; returns the summary."""
+    from tqdm import tqdm
+
+    from facesim.controls import Controls
+    from facesim.mocap.io import marker_csv_header, marker_csv_line, read_markers_csv, write_trc
+
     mk_header = marker_csv_header(model.markers.names)
     log_header = ",".join(FRAME_LOG_COLUMNS) + "\n"
     n_done, old_rows, old_marks = (_complete_frames(out, frames, A, J, model, mk_header, log_header) if resume
@@ -313,7 +309,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     wall0 = time.perf_counter()
     summary = {
         "facesim_version": facesim.__version__, "status": "running", **(info or {}),
-        "model_fingerprint": fingerprint, "n_nodes": model.n_nodes, "n_muscles": model.n_muscles,
+        "model_fingerprint": fingerprint(model), "n_nodes": model.n_nodes, "n_muscles": model.n_muscles,
         "n_markers": model.n_markers,
         "options": {"solver": options.newton.linear_solver, "rtol": options.newton.rtol,
                     "max_iterations": options.newton.max_iterations, "fps": options.fps, "render": options.render,
@@ -328,13 +324,15 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     atomic_write(out.report, lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
 
     rows = [_parse_row(line) for line in old_rows]
-    # Warm start: the last converged complete frame (a diverged state is a poor starting guess).
+    # Warm start: the last converged complete frame (a diverged state is a poor starting guess),
+    # its positions as solved (the state file holds them at full precision: the same warm start
+    # as in an uninterrupted run)
     converged_before = [r["frame"] for r in rows if r["converged"]]
     x_warm = _load_x(out, converged_before[-1], model) if converged_before else None
     for i, k in enumerate(map(int, frames[:n_done])):   # files derived from complete frames' states: redraw missing
         skin, png = not out.skin(k).is_file(), options.render and not out.png(k).is_file()
         if skin or png:
-            posed = simulation().posed_colliders(k, Controls(A[i], jaw=None if jaw is None else J[i])) \
+            posed = simulation().posed_colliders(k, Controls(A[i], jaw=J[i] if posed_jaw else None)) \
                 if png and colliders else ()
             _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed)
 
@@ -346,7 +344,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
             for i in range(n_done, len(frames)):
                 k = int(frames[i])
                 t0 = time.perf_counter()
-                f = simulation().step(A[i], jaw=None if jaw is None else J[i], frame=k, x0=x_warm)
+                f = simulation().step(A[i], jaw=J[i] if posed_jaw else None, frame=k, x0=x_warm)
                 x, converged = f.x, f.converged
                 seconds = f.seconds if f.report is not None else time.perf_counter() - t0
                 _save_state(out.state(k), k, x, A[i], J[i], converged, f.error)
@@ -367,19 +365,28 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     finally:
         frame_log.close()
         marker_log.close()
-        if rows:
-            data = read_markers_csv(out.markers_csv)
-            write_trc(out.trc, data.frames, data.names, data.P, options.fps)
         summary.update(_summarise(rows, status, time.perf_counter() - wall0, out))
         if options.render:
             summary["outputs"]["png"] = str(out.root / "png")
-        if status == "complete" and options.video:
-            from facesim.viz.video import write_video
 
-            path, note = write_video([out.png(int(k)) for k in frames], out.root, options.fps)
-            summary["outputs"]["video"] = str(path)
-            summary["video_note"] = note
-        atomic_write(out.report, lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
+        def trc():
+            if rows:
+                data = read_markers_csv(out.markers_csv)
+                write_trc(out.trc, data.frames, data.names, data.P, options.fps)
+
+        def video():
+            if status == "complete" and options.video:
+                from facesim.viz.video import write_video
+
+                path, note = write_video([out.png(int(k)) for k in frames], out.root, options.fps)
+                summary["outputs"]["video"] = str(path)
+                summary["video_note"] = note
+
+        def report():
+            atomic_write(out.report, lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
+
+        # a failed run reports its own error, not a consequence of it in these writes (a full disk)
+        finish((trc, video, report), failed=status != "complete")
     return summary
 
 
