@@ -27,6 +27,11 @@ _DEADLINE: contextvars.ContextVar[float | None] = contextvars.ContextVar("facesi
 
 #: The stop reason of a solve that ran out of its wall-clock budget.
 TIME_LIMIT = "time_limit"
+#: The default budget of a frame: FRAME_SECONDS plus SECONDS_PER_UNKNOWN per unknown of the mesh
+#: (the coarse face 135 s, the paper-size face 530 s: several times what a hard frame takes, far
+#: short of a hang).
+FRAME_SECONDS = 120.0
+SECONDS_PER_UNKNOWN = 1e-3
 
 
 def check_seconds(seconds, what: str = "max seconds per frame") -> float | None:
@@ -41,6 +46,13 @@ def check_seconds(seconds, what: str = "max seconds per frame") -> float | None:
     if not (math.isfinite(value) and value > 0):
         raise FacesimError(f"{what}: expected a number of seconds > 0, got {seconds!r}")
     return value
+
+
+def default_frame_seconds(model) -> float:
+    """The default wall-clock budget of one frame of ``model`` (a FaceModel), s: see
+    :data:`FRAME_SECONDS`."""
+    free = model.n_nodes - len(model.cranium_nodes) - len(model.jaw_nodes)
+    return FRAME_SECONDS + SECONDS_PER_UNKNOWN * 3 * free
 
 
 @contextmanager
@@ -71,4 +83,5 @@ def remaining() -> float:
     return math.inf if deadline is None else max(0.0, deadline - time.monotonic())
 
 
-__all__ = ["TIME_LIMIT", "check_seconds", "expired", "remaining", "time_budget"]
+__all__ = ["FRAME_SECONDS", "SECONDS_PER_UNKNOWN", "TIME_LIMIT", "check_seconds", "default_frame_seconds", "expired",
+           "remaining", "time_budget"]

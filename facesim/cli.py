@@ -300,11 +300,18 @@ def cmd_simulate(args) -> int:
 
         jaw_model = make_jaw_model(model, "posselt", model_path=args.model)
     T = None
+    from facesim.fem.plausible import check_colliders, check_jaw
+    from facesim.kinematics.jaw_models import make_jaw_model
+
+    jm = make_jaw_model(model, jaw_model)
     if args.jaw:
-        jaw_frames, T = read_jaw_csv(args.jaw, model, jaw_model)
+        jaw_frames, T = read_jaw_csv(args.jaw, model, jm)
         check_same_frames(args.jaw, jaw_frames, args.activations, frames)
+        check_jaw(model, jm, frames, T, args.jaw)
     colliders = _colliders(args, Path(args.activations).parent)
-    options = SimulateOptions(newton=NewtonOptions(linear_solver=args.solver), fps=args.fps,
+    check_colliders(model, colliders, frames, jm, T)
+    seconds = _frame_seconds(args, model)
+    options = SimulateOptions(newton=NewtonOptions(linear_solver=args.solver, max_seconds=seconds), fps=args.fps,
                               render=args.render or args.video, video=args.video, view=args.view, size=args.size,
                               teeth_contact=args.teeth_contact, lip_contact=args.lip_contact,
                               contact_stiffness=args.contact_stiffness)
@@ -332,13 +339,15 @@ def cmd_solve_mocap(args) -> int:
     from facesim.fem.newton import NewtonOptions
     from facesim.inverse.gauss_newton import FitOptions
     from facesim.inverse.parallel import SimulatorSpec, dask_client
+    from facesim.fem.plausible import check_colliders
     from facesim.inverse.tracking import TrackOptions, track
     from facesim.mocap.binding import bind_neutral, match_markers
-    from facesim.mocap.io import frame_mask, read_markers
+    from facesim.mocap.io import check_capture_scale, frame_mask, marker_spread, read_markers
     from facesim.viz.plots import plot_track
 
     model = _load(args.model)
     data = read_markers(args.markers, units=args.units)
+    check_capture_scale(data, marker_spread(model.marker_positions())[0], args.markers, args.units)
     index, extra, missing = match_markers(model.markers.names, data.names)
     if (index >= 0).sum() < 3:
         raise FacesimError(f"{args.markers}: only {int((index >= 0).sum())} of the model's {model.n_markers} marker "
@@ -360,8 +369,10 @@ def cmd_solve_mocap(args) -> int:
     setup = EquilibriumOptions(newton=NewtonOptions(linear_solver=args.solver),
                                **_mocap_contact(args, model, Path(args.markers).parent))
     spec = SimulatorSpec.of(args.model, setup, args.jaw_model)
+    check_colliders(model, setup.colliders, frames)
     spec.build()
-    options = TrackOptions(fit=FitOptions(noise=args.noise, max_steps=args.max_steps), head=args.head,
+    options = TrackOptions(fit=FitOptions(noise=args.noise, max_steps=args.max_steps,
+                                          max_seconds=_frame_seconds(args, model)), head=args.head,
                            robust=not args.no_robust, loss=args.loss, loss_scale=args.loss_scale,
                            chunk_size=args.chunk_size, head_smoothing=args.head_smoothing)
     parallel = args.workers is not None or args.scheduler is not None
@@ -402,6 +413,13 @@ def _mocap_contact(args, model, base: Path) -> dict:
     print(f"contact: {state}" + (f", {len(colliders)} collider(s)" if colliders else ""))
     return {"lip_contact": lips, "teeth_contact": teeth, "colliders": tuple(colliders),
             "contact_stiffness": args.contact_stiffness}
+
+
+def _frame_seconds(args, model) -> float:
+    """The wall-clock budget of a frame: --max-seconds-per-frame, or the model's default."""
+    from facesim.budget import default_frame_seconds
+
+    return args.max_seconds_per_frame or default_frame_seconds(model)
 
 
 def _warn_unconverged(s: dict, log: Path) -> None:
@@ -458,6 +476,27 @@ def _add_contact_options(parser, relative_to: str, default_on: bool = False) -> 
                             help="no lip and no teeth contact (the lips may pass through each other and the teeth)")
     parser.add_argument("--contact-stiffness", type=float, default=CONTACT_STIFFNESS, metavar="K",
                         help="penalty stiffness of all contact, N/mm^3 (default: %(default)s)")
+
+
+def _seconds(text: str) -> float:
+    """argparse type for a wall-clock budget in seconds (> 0)."""
+    from facesim.budget import check_seconds
+
+    try:
+        return check_seconds(text, "seconds")
+    except FacesimError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _add_budget_option(parser) -> None:
+    """``--max-seconds-per-frame`` (one meaning in simulate and solve-mocap)."""
+    from facesim.budget import FRAME_SECONDS, SECONDS_PER_UNKNOWN
+
+    parser.add_argument("--max-seconds-per-frame", type=_seconds, metavar="S",
+                        help="wall-clock budget of one frame: a frame still unsolved after S seconds stops, is flagged "
+                             "(stop_reason time_limit in frames.csv and report.json) and the run goes on with the next "
+                             f"(default: {FRAME_SECONDS:g} s plus {1e3 * SECONDS_PER_UNKNOWN:g} ms per unknown of the "
+                             "model, 135 s for the coarse face)")
 
 
 def _colliders(args, base: Path) -> list:
@@ -615,6 +654,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--solver", choices=("amg", "direct", "pardiso"), default="amg",
                           help="linear solver of the Newton steps: algebraic multigrid + CG, sparse LU (SuperLU), "
                                "or MKL PARDISO (pip install 'facesim[pardiso]') (default: %(default)s)")
+    _add_budget_option(simulate)
     simulate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     simulate.set_defaults(func=cmd_simulate)
 
@@ -686,6 +726,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "captured ones) into OUT/render/frame_KKKKK.png and OUT/render/video.mp4 (an animated "
                             "GIF video.gif when imageio-ffmpeg is not installed)")
     _add_contact_options(solve, "F", default_on=True)
+    _add_budget_option(solve)
     solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     solve.set_defaults(func=cmd_solve_mocap)
     add_jaw_commands(commands)
