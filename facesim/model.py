@@ -10,7 +10,16 @@ condyles (see ``docs/physics.md`` section 6).
 File format: one compressed ``.npz`` whose ``meta`` entry is a JSON string carrying
 ``format`` (``"facesim-model"``) and ``version`` (:data:`FORMAT_VERSION`); every array field
 is stored under a fixed key. Unknown versions and missing fields are refused with a one-line
-:class:`~facesim.errors.ModelFileError`.
+:class:`~facesim.errors.ModelFileError`, and so is bad content (:func:`load_model`).
+
+Content. Every :class:`FaceModel`, built in memory or read from a file, passes one content
+check at construction (``_check_content``): finite numbers, at least one node, tet, skin
+triangle and simulated tet, positive rest tet volumes, materials in their physical ranges
+(c10 > 0, c01 >= 0, kappa > 0 MPa; sigma_max >= 0 MPa), unit fibres, non-empty cranium and
+jaw attachments. The parts check their structure (shapes, counts, index ranges) themselves;
+:class:`JawGeometry`, which the jaw rigs use on their own, also its content. A model whose
+tets are all inverted is refused like any other: it is not silently re-oriented (the message
+says every tet is inverted, i.e. the file stores the other orientation).
 """
 
 from __future__ import annotations
@@ -34,12 +43,50 @@ BONES = ("cranium", "jaw")
 SIDES = ("L", "R", "M")
 
 
+class _FieldError(FacesimError):
+    """Bad content of one model field. ``field`` names it as the model does (``"X"``,
+    ``"muscles.fibre"``, ``"tissues[1].kappa"``); ``expected`` says what was expected and what
+    was found. :func:`load_model` reports it under the field's key in the file."""
+
+    def __init__(self, field: str, expected: str):
+        self.field, self.expected = field, expected
+        super().__init__(f"{field}: {expected}")
+
+
+def _some(bad: np.ndarray, noun: str, plural: str | None = None, index: np.ndarray | None = None) -> str:
+    """``"3 of 5,123 nodes (first: node 17)"`` for the True entries of ``bad (k,)`` bool; ``index (k,)``
+    numbers the entries (default 0 .. k-1)."""
+    first = int(np.argmax(bad)) if index is None else int(index[np.argmax(bad)])
+    return f"{int(bad.sum()):,} of {bad.size:,} {plural or noun + 's'} (first: {noun} {first})"
+
+
+def _num(v) -> str:
+    """A value for a message: numbers as ``%.6g`` (``-0.1``, ``nan``), anything else as its repr."""
+    if isinstance(v, (int, float, np.number)) and not isinstance(v, bool):
+        return f"{float(v):.6g}"
+    return repr(v)
+
+
 def _as(a, dtype, shape_tail: tuple[int, ...], name: str) -> np.ndarray:
     """Read-only contiguous copy of ``a`` as ``dtype`` with trailing shape ``shape_tail``.
 
-    Always a copy, so freezing it never makes the caller's array read-only.
+    Always a copy, so freezing it never makes the caller's array read-only. Only numbers and
+    bools convert (strings, objects and complex numbers are refused, not cast); an integer
+    ``dtype`` takes integral values that fit it, so indices are never truncated or wrapped.
     """
-    arr = np.array(a, dtype=dtype, order="C", copy=True)
+    src = np.asarray(a)
+    if src.dtype.kind not in "biuf":
+        raise _FieldError(name, f"expected numbers, got dtype {src.dtype}")
+    if np.dtype(dtype).kind in "iu" and src.size and src.dtype.kind in "iuf":
+        info = np.iinfo(dtype)
+        flat = src.ravel()
+        bad = ~(np.isfinite(flat) & (flat >= info.min) & (flat <= info.max))
+        if src.dtype.kind == "f":
+            bad |= ~(np.floor(flat) == flat)
+        if bad.any():
+            raise _FieldError(name, f"expected integers in [{info.min}, {info.max}], got "
+                                    f"{_num(flat[np.argmax(bad)])} in {_some(bad, 'entry', 'entries')}")
+    arr = np.array(src, dtype=dtype, order="C", copy=True)
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
         want = "(k" + "".join(f", {s}" for s in shape_tail) + ")"
         raise FacesimError(f"{name}: expected shape {want}, got {arr.shape}")
@@ -64,7 +111,7 @@ def positively_oriented(X: np.ndarray, tets: np.ndarray) -> np.ndarray:
 
 def _check_index(arr: np.ndarray, upper: int, name: str) -> None:
     if arr.size and (arr.min() < 0 or arr.max() >= upper):
-        raise FacesimError(f"{name}: indices must lie in [0, {upper}), got [{arr.min()}, {arr.max()}]")
+        raise _FieldError(name, f"indices must lie in [0, {upper}), got [{arr.min()}, {arr.max()}]")
 
 
 @dataclass(frozen=True)
@@ -95,6 +142,9 @@ class MuscleSet:
     tet : (k,) int32, tet index of each entry.
     fraction : (k,) float64, volume fraction of the tet occupied by the muscle, in (0, 1].
     fibre : (k, 3) float64, unit rest fibre direction of the muscle in that tet.
+
+    Shapes, counts, order and muscle indices are checked here; the values (peak stresses,
+    fractions, fibres) by the model's content check.
     """
 
     names: tuple[str, ...]
@@ -130,10 +180,6 @@ class MuscleSet:
             key = self.muscle.astype(np.int64) * (int(self.tet.max()) + 1) + self.tet
             if np.any(np.diff(key) <= 0):
                 raise FacesimError("muscles: entries must be sorted by (muscle, tet) without duplicates")
-        if k and (self.fraction.min() <= 0.0 or self.fraction.max() > 1.0 + 1e-9):
-            raise FacesimError("muscles.fraction: expected values in (0, 1]")
-        if k and np.abs(np.linalg.norm(self.fibre, axis=1) - 1.0).max() > 1e-6:
-            raise FacesimError("muscles.fibre: expected unit vectors")
 
     @property
     def n_muscles(self) -> int:
@@ -214,8 +260,6 @@ class MarkerSet:
         for name in ("triangle", "bary", "offset", "head"):
             if len(getattr(self, name)) != r:
                 raise FacesimError(f"markers.{name}: expected {r} entries, one per marker name")
-        if r and (self.bary.min() < -1e-9 or np.abs(self.bary.sum(1) - 1.0).max() > 1e-9):
-            raise FacesimError("markers.bary: expected non-negative barycentric coordinates summing to 1")
 
     @property
     def n_markers(self) -> int:
@@ -262,18 +306,27 @@ class JawGeometry:
     incisor: np.ndarray
 
     def __post_init__(self):
+        # content checked here, not by the model's check: the jaw rigs use a geometry on its own
         for name in ("condyle_right", "condyle_left", "track_direction", "incisor"):
-            v = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            v = _as(getattr(self, name), np.float64, (), f"jaw.{name}")
             if v.shape != (3,):
                 raise FacesimError(f"jaw.{name}: expected shape (3,), got {v.shape}")
-            v.setflags(write=False)
+            if not np.isfinite(v).all():
+                raise _FieldError(f"jaw.{name}", f"expected 3 finite numbers, got {v.tolist()}")
             object.__setattr__(self, name, v)
-        if abs(np.linalg.norm(self.track_direction) - 1.0) > 1e-9:
-            raise FacesimError("jaw.track_direction: expected a unit vector")
-        object.__setattr__(self, "track_length", float(self.track_length))
-        object.__setattr__(self, "max_opening", float(self.max_opening))
-        if not self.track_length > 0 or not 0 < self.max_opening < np.pi / 2:
-            raise FacesimError("jaw: expected track_length > 0 and max_opening in (0, pi/2)")
+        if not abs(np.linalg.norm(self.track_direction) - 1.0) <= 1e-9:
+            raise _FieldError("jaw.track_direction", "expected a unit vector")
+        if not self.intercondylar_distance > 0:
+            raise _FieldError("jaw.condyle_left", "expected two distinct condyles, got condyle_left = condyle_right")
+        for name in ("track_length", "max_opening"):
+            try:
+                object.__setattr__(self, name, float(getattr(self, name)))
+            except (TypeError, ValueError):
+                raise _FieldError(f"jaw.{name}", f"expected a number, got {getattr(self, name)!r}") from None
+        if not self.track_length > 0 or not np.isfinite(self.track_length):
+            raise _FieldError("jaw.track_length", f"expected a finite length > 0 mm, got {_num(self.track_length)}")
+        if not 0 < self.max_opening < np.pi / 2:
+            raise _FieldError("jaw.max_opening", f"expected an angle in (0, pi/2) rad, got {_num(self.max_opening)}")
 
     @property
     def u(self) -> np.ndarray:
@@ -372,6 +425,7 @@ class FaceModel:
         object.__setattr__(self, "bones", tuple(self.bones))
         object.__setattr__(self, "colliders", tuple(self.colliders))
         object.__setattr__(self, "meta", dict(self.meta))
+        _check_content(self)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -449,6 +503,86 @@ class FaceModel:
         return load_model(path)
 
 
+# -------------------------------------------------------------------- content
+#: physical ranges of the material parameters, MPa: (name, lower bound, lower bound included)
+_TISSUE_RANGES = (("c10", 0.0, False), ("c01", 0.0, True), ("kappa", 0.0, False))
+
+
+def _check_content(model: FaceModel) -> None:
+    """The content check of every model (module docstring): one-line :class:`_FieldError` naming
+    the field, what was expected and what was found. The structure (shapes, counts, index
+    ranges) is checked before, so the indices here are safe to use."""
+    X, tets = model.X, model.tets
+    if not len(X):
+        raise _FieldError("X", "expected at least one node, got none")
+    bad = ~np.isfinite(X).all(axis=1)
+    if bad.any():
+        raise _FieldError("X", f"expected finite node coordinates (mm), {_some(bad, 'node')} are NaN or inf")
+    if not len(tets):
+        raise _FieldError("tets", "expected at least one tet, got none")
+    volume = signed_volumes(X, tets)
+    bad = ~(volume > 0)
+    if (volume < 0).all():
+        raise _FieldError("tets", f"expected positively oriented tets (rest volume > 0), every one of the "
+                                  f"{len(tets):,} tets is inverted (stored in the other orientation: swap two "
+                                  f"columns, e.g. facesim.model.positively_oriented)")
+    if bad.any():
+        raise _FieldError("tets", f"expected positive rest volumes, {_some(bad, 'tet')} are inverted or flat "
+                                  f"(volume {volume[np.argmax(bad)]:.3g} mm^3)")
+    if not len(model.skin):
+        raise _FieldError("skin", "expected at least one skin triangle, got none")
+    if not model.simulated.any():
+        raise _FieldError("simulated", f"expected at least one simulated tet, got none of {len(tets):,}")
+    if not len(model.cranium_nodes):
+        raise _FieldError("cranium_nodes", "expected at least one node attached to the cranium (the flesh "
+                                           "needs a fixed boundary), got none")
+    if not len(model.jaw_nodes):
+        raise _FieldError("jaw_nodes", "expected at least one node attached to the mandible (else the jaw "
+                                       "controls move nothing), got none")
+    still = np.flatnonzero(~model.simulated)
+    loose = ~np.isin(tets[still], model.cranium_nodes).all(axis=1)
+    if loose.any():
+        raise _FieldError("simulated", f"expected the nodes of every non-simulated tet in cranium_nodes (those tets "
+                                       f"move with the cranium), {_some(loose, 'tet', 'non-simulated tets', still)} "
+                                       f"have free nodes")
+    for i, t in enumerate(model.tissues):
+        for name, low, closed in _TISSUE_RANGES:
+            v = getattr(t, name)
+            ok = isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and np.isfinite(v) and \
+                (v >= low if closed else v > low)
+            if not ok:
+                raise _FieldError(f"tissues[{i}].{name}", f"expected {name} {'>=' if closed else '>'} {low:g} MPa "
+                                                          f"and finite for tissue {t.name!r}, got {_num(v)}")
+    mus = model.muscles
+    bad = ~(np.isfinite(mus.sigma_max) & (mus.sigma_max >= 0))
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise _FieldError("muscles.sigma_max", f"expected finite peak stresses sigma_max >= 0 MPa, "
+                                               f"{_some(bad, 'muscle')} are not ({mus.names[j]!r}: {_num(mus.sigma_max[j])})")
+    bad = ~((mus.fraction > 0) & (mus.fraction <= 1 + 1e-9))
+    if bad.any():
+        raise _FieldError("muscles.fraction", f"expected volume fractions in (0, 1], {_some(bad, 'entry', 'entries')} "
+                                              f"are not ({_num(mus.fraction[np.argmax(bad)])})")
+    norm = np.linalg.norm(mus.fibre, axis=1)
+    bad = ~(np.abs(norm - 1.0) <= 1e-6)
+    if bad.any():
+        raise _FieldError("muscles.fibre", f"expected unit fibre directions, {_some(bad, 'entry', 'entries')} are "
+                                           f"zero, not finite or not of length 1 (length {_num(norm[np.argmax(bad)])})")
+    mk = model.markers
+    bad = ~((mk.bary >= -1e-9).all(axis=1) & (np.abs(mk.bary.sum(axis=1) - 1.0) <= 1e-9))
+    if bad.any():
+        raise _FieldError("markers.bary", f"expected finite non-negative barycentric coordinates summing to 1, "
+                                          f"{_some(bad, 'marker')} are not")
+    bad = ~np.isfinite(mk.offset)
+    if bad.any():
+        raise _FieldError("markers.offset", f"expected finite marker heights (mm), {_some(bad, 'marker')} are NaN or inf")
+    for s in model.bones + model.colliders:
+        bad = ~np.isfinite(s.vertices).all(axis=1)
+        if bad.any():
+            raise _FieldError(f"{s.name}.vertices", f"expected finite vertex coordinates (mm), "
+                                                    f"{_some(bad, 'vertex', 'vertices')} are NaN or inf")
+
+
 # --------------------------------------------------------------------- format
 def _surfaces_to_arrays(prefix: str, surfaces) -> tuple[dict, list]:
     arrays, meta = {}, []
@@ -502,14 +636,47 @@ def _to_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
     return arrays, meta
 
 
+#: stored index arrays (and ``bone{i}_faces``, ``collider{i}_faces``): integers in the file
+_INDEX_KEYS = frozenset(("tets", "tissue", "cranium_nodes", "jaw_nodes", "skin", "lip_upper", "lip_lower",
+                         "muscle_entry_muscle", "muscle_entry_tet", "marker_triangle"))
+_MASK_KEYS = frozenset(("simulated", "marker_head"))
+#: model field (as a :class:`_FieldError` names it) -> its key in the file, where they differ
+_FILE_KEYS = {"muscles.sigma_max": "muscle_sigma_max", "muscles.muscle": "muscle_entry_muscle",
+              "muscles.tet": "muscle_entry_tet", "muscles.fraction": "muscle_entry_fraction",
+              "muscles.fibre": "muscle_entry_fibre", "markers.triangle": "marker_triangle",
+              "markers.bary": "marker_bary", "markers.offset": "marker_offset", "markers.head": "marker_head",
+              "jaw.track_length": "meta.jaw_track_length", "jaw.max_opening": "meta.jaw_max_opening"}
+
+
+def _stored(path, key: str, a: np.ndarray) -> np.ndarray:
+    """``a`` if the file stores field ``key`` with the right kind of dtype, checked before any cast
+    can hide it (a float index array would be truncated): integers for indices, bools for masks,
+    real numbers for the rest."""
+    if key in _INDEX_KEYS or key.endswith("_faces"):
+        kinds, what = "iu", "integer indices"
+    elif key in _MASK_KEYS:
+        kinds, what = "b", "a bool mask"
+    else:
+        kinds, what = "fiu", "real numbers"
+    if a.dtype.kind not in kinds:
+        raise ModelFileError(path, f"field {key!r}: expected {what}, stored as dtype {a.dtype}")
+    return a
+
+
 def load_model(path) -> FaceModel:
     """Read a :class:`FaceModel` from a ``.npz`` written by :meth:`FaceModel.save`.
 
     Raises :class:`~facesim.errors.ModelFileError` (one line: file, field, expectation) when the
-    file is missing, not an npz, not a facesim model, of an unknown version or lacks a field.
+    file is missing, not an npz, not a facesim model, of an unknown version, lacks a field, stores
+    a field with the wrong kind of dtype (e.g. float tets), or fails the content check of every
+    model (module docstring), e.g. ``M.npz: field 'X': expected finite node coordinates (mm),
+    3 of 5,123 nodes (first: node 17) are NaN or inf``.
     """
     with read_npz(path, MODEL_FORMAT) as archive:
-        arr, m = archive.array, archive.field
+        m = archive.field
+
+        def arr(key: str) -> np.ndarray:
+            return _stored(archive.path, key, archive.array(key))
 
         def surfaces(prefix: str, key: str) -> tuple[RigidSurface, ...]:
             return tuple(RigidSurface(s["name"], s["bone"], arr(f"{prefix}{i}_vertices"), arr(f"{prefix}{i}_faces"))
@@ -557,11 +724,36 @@ def load_model(path) -> FaceModel:
             )
         except ModelFileError:
             raise
-        except (FacesimError, KeyError, TypeError) as exc:
+        except _FieldError as exc:
+            raise ModelFileError(archive.path, f"field {_file_key(exc.field, archive.meta)!r}: {exc.expected}") from None
+        except (FacesimError, KeyError, TypeError, ValueError) as exc:
             raise ModelFileError(archive.path, f"inconsistent model data: {exc}") from None
 
 
+def _file_key(field: str, meta: dict) -> str:
+    """The key in the file of the model field ``field`` (as a :class:`_FieldError` names it)."""
+    if field in _FILE_KEYS:
+        return _FILE_KEYS[field]
+    if field.startswith("jaw."):
+        return "jaw_" + field[len("jaw."):]
+    if field.startswith("tissues["):
+        return "meta." + field
+    name, _, part = field.rpartition(".")
+    for prefix, key in (("bone", "bones"), ("collider", "colliders")):
+        for i, s in enumerate(meta.get(key, ())):
+            if isinstance(s, dict) and s.get("name") == name:
+                return f"{prefix}{i}_{part}"
+    return field
+
+
 def _renormalise(v: np.ndarray) -> np.ndarray:
-    """Fibres are stored as float32; restore exact unit length in float64."""
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v, axis=1, keepdims=True) if len(v) else v.reshape(0, 3)
+    """Fibres are stored as float32; restore exact unit length in float64. Only the float32
+    rounding is undone: a zero, non-finite or otherwise non-unit stored fibre is kept as stored,
+    for the content check to refuse (dividing would turn a zero fibre into NaN)."""
+    v = np.array(v, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3:
+        return v.reshape(0, 3) if not v.size else v
+    n = np.linalg.norm(v, axis=1)
+    rounding = np.abs(n - 1.0) <= 1e-6
+    v[rounding] /= n[rounding, None]
+    return v

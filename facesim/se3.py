@@ -153,15 +153,65 @@ def transform_points(T, X) -> np.ndarray:
     return np.swapaxes(T[..., :3, :3] @ X.T + T[..., :3, 3:], -1, -2)
 
 
+def _departures(T: np.ndarray):
+    """``(ortho, det R, row)`` per pose of ``T (..., 4, 4)``: max |RᵀR − I|, det R and
+    max |last row − (0, 0, 0, 1)|."""
+    R = T[..., :3, :3]
+    ortho = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-2, -1))
+    row = np.abs(T[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
+    return ortho, np.linalg.det(R), row
+
+
 def rigidity_error(T) -> np.ndarray:
     """``(...)`` departure of ``T (..., 4, 4)`` from a proper rigid motion:
     max(|RᵀR − I|, |det R − 1|, |last row − (0, 0, 0, 1)|), dimensionless."""
-    T = _array(T, (4, 4), "pose")
-    R = T[..., :3, :3]
-    ortho = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-2, -1))
-    det = np.abs(np.linalg.det(R) - 1.0)
-    row = np.abs(T[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
-    return np.maximum(np.maximum(ortho, det), row)
+    ortho, det, row = _departures(_array(T, (4, 4), "pose"))
+    return np.maximum(np.maximum(ortho, np.abs(det - 1.0)), row)
+
+
+#: how far a pose read from a file or given to a rig may depart from a proper rigid motion
+#: (max |RᵀR − I| and |last row − (0, 0, 0, 1)|); float32 storage rounds rotations to ~1e-7
+RIGID_TOLERANCE = 1e-6
+
+
+def check_rigid(T, what: str = "pose", tolerance: float = RIGID_TOLERANCE) -> np.ndarray:
+    """``T (4, 4)`` or ``(..., 4, 4)`` as float64 when every pose is a proper rigid motion: finite,
+    R orthonormal within ``tolerance`` with det R = +1 (a rotation, not a reflection) and last row
+    0 0 0 1 within ``tolerance``. Otherwise a one-line :class:`FacesimError` starting with ``what``
+    (e.g. "P.npz: field 'poses'") that names the first bad pose and what is wrong with it.
+
+    The one check of every pose and rig reader (poses files, rig frames, the rigs' pose inputs)."""
+    T = np.asarray(T)
+    if T.dtype.kind not in "biuf":
+        raise FacesimError(f"{what}: expected 4x4 rigid transforms (numbers), got dtype {T.dtype}")
+    T = T.astype(np.float64)
+    if T.ndim < 2 or T.shape[-2:] != (4, 4):
+        raise FacesimError(f"{what}: expected 4x4 rigid transforms, shape (4, 4) or (N, 4, 4), got {T.shape}")
+    flat = T.reshape(-1, 4, 4)
+
+    def refuse(bad: np.ndarray, expected: str, got) -> None:
+        if bad.any():
+            i = int(np.argmax(bad))
+            at = "" if T.ndim == 2 else f" in pose {i} ({int(bad.sum()):,} of {len(flat):,} poses)"
+            raise FacesimError(f"{what}: expected {expected}, got {got(i)}{at}")
+
+    refuse(~np.isfinite(flat).all(axis=(1, 2)), "finite rigid transforms", lambda i: "NaN or inf entries")
+    ortho, det, row = _departures(flat)
+    refuse(~(row <= tolerance), f"rigid transforms with last row 0 0 0 1 (within {tolerance:g})",
+           lambda i: f"last row {' '.join(f'{v:g}' for v in flat[i, 3])}")
+    refuse(~(ortho <= tolerance), f"rigid transforms with an orthonormal rotation (|R^T R - I| <= {tolerance:g})",
+           lambda i: f"|R^T R - I| = {ortho[i]:.3g}")
+    refuse(det < 0, "rigid transforms with a rotation (det R = +1)", lambda i: f"a reflection (det R = {det[i]:.3g})")
+    return T
+
+
+def check_poses(poses, what: str = "poses", minimum: int = 1) -> np.ndarray:
+    """``poses (N, 4, 4)`` float64 with N >= ``minimum``, each passing :func:`check_rigid`; one-line
+    :class:`FacesimError` starting with ``what`` otherwise."""
+    P = np.asarray(poses)
+    if P.ndim != 3 or P.shape[1:] != (4, 4) or len(P) < minimum:
+        raise FacesimError(f"{what}: expected (N, 4, 4) rigid transforms with N >= {minimum}, got shape {P.shape}")
+    return check_rigid(P, what)
 
 
 def vertex_errors(T_a, T_b, points, weights=None) -> np.ndarray:
@@ -242,6 +292,9 @@ def interpolate(A, B, s) -> np.ndarray:
 
 
 __all__ = [
+    "RIGID_TOLERANCE",
+    "check_poses",
+    "check_rigid",
     "exp",
     "fit_rotation",
     "from_rt",

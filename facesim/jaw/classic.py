@@ -91,6 +91,7 @@ class ClassicRig:
     def __post_init__(self):
         if self.dof not in DOF:
             raise FacesimError(f"classic rig: unknown dof {self.dof!r} (expected one of {', '.join(DOF)})")
+        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin), "classic rig: jaw frame (fields 'frame_origin', 'frame_axes')")
         origin = np.array(self.origin, dtype=np.float64)
         if origin.shape != (3,) or not np.isfinite(origin).all():
             raise FacesimError("classic rig: expected a finite pivot origin (3,) mm")
@@ -142,7 +143,7 @@ class ClassicRig:
         """Per-frame parameters ``(N, k)`` of the rig poses closest to ``poses (N, 4, 4)`` (skull
         frame) in the weighted mean squared distance of ``points (P, 3)`` mm (skull frame, the
         mandible at rest) with ``weights (P,)`` (Zoss eq. 6)."""
-        poses = _poses(poses)
+        poses = se3.check_poses(poses)
         L = second_moment_factor(self.frame.to_local(points), weights)
         return _fit_frames(self, self.frame.pose_to_local(poses), L, self.origin, q0)[0]
 
@@ -165,13 +166,8 @@ class ClassicRig:
                               arrays["bounds"])
         except FacesimError as exc:
             raise ModelFileError(path, str(exc)) from None
-
-
-def _poses(poses) -> np.ndarray:
-    poses = np.asarray(poses, dtype=np.float64)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0 or not np.isfinite(poses).all():
-        raise FacesimError(f"poses: expected finite (N, 4, 4) transforms with N >= 1, got {poses.shape}")
-    return poses
+        except (TypeError, ValueError) as exc:      # strings where numbers belong
+            raise ModelFileError(path, f"unreadable classic rig data ({type(exc).__name__}: {exc})") from None
 
 
 def _initial(rig: ClassicRig, local: np.ndarray, origin) -> np.ndarray:
@@ -241,7 +237,7 @@ def fit_classic(poses, dof: str, frame: JawFrame, points, weights=None, origin0=
     regularization, scale : the soft-L1 penalty ``regularization · scale² · rho(|o − o0|² / scale²)``
         (mm², rho(z) = 2 (sqrt(1 + z) − 1)) added to the mean squared point distance (Zoss eq. 8).
     """
-    poses = _poses(poses)
+    poses = se3.check_poses(poses)
     if dof not in DOF:
         raise FacesimError(f"classic rig: unknown dof {dof!r} (expected one of {', '.join(DOF)})")
     if not regularization >= 0 or not scale > 0:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facesim import se3
 from facesim._files import atomic_write, open_npz, require_suffix
 from facesim.errors import FacesimError, ModelFileError
 
@@ -57,16 +58,22 @@ class PosesFile:
 
 
 def _field(data, path, key, shape_ok, expected: str, dtype=np.float64):
+    """The array ``key`` of a poses file as ``dtype`` (None: as stored), of a shape ``shape_ok``
+    accepts; numbers stored as numbers (integers for an integer ``dtype``: frame indices stored as
+    floats are refused, not cast) and finite."""
     try:
         a = data[key]
     except Exception as exc:  # noqa: BLE001 (a corrupt member: zlib.error, BadZipFile, ValueError ...)
         raise ModelFileError(path, f"field {key!r} unreadable ({type(exc).__name__})") from None
     if dtype is not None:
-        if a.dtype.kind not in "fiu":
+        kinds = "iu" if np.dtype(dtype).kind in "iu" else "fiu"
+        if a.dtype.kind not in kinds:
             raise ModelFileError(path, f"field {key!r}: expected {expected}, got dtype {a.dtype}")
-        a = a.astype(dtype)
         if not np.isfinite(a).all():
-            raise ModelFileError(path, f"field {key!r}: expected finite values")
+            bad = ~np.isfinite(a).reshape(len(a), -1).all(axis=1) if a.ndim else np.ones(1, bool)
+            raise ModelFileError(path, f"field {key!r}: expected finite values, got NaN or inf in "
+                                       f"{int(bad.sum()):,} of {len(bad):,} rows (first: row {int(np.argmax(bad))})")
+        a = a.astype(dtype)
     if not shape_ok(a.shape):
         raise ModelFileError(path, f"field {key!r}: expected {expected}, got shape {a.shape}")
     return a
@@ -80,12 +87,10 @@ def read_poses(path) -> PosesFile:
             raise ModelFileError(path, "field 'poses' missing (expected (N, 4, 4) mandible-to-skull transforms, mm)")
         poses = _field(data, path, "poses", lambda s: len(s) == 3 and s[1:] == (4, 4) and s[0] > 0,
                        "(N, 4, 4) transforms with N >= 1")
-        bad = np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > 1e-9
-        R = poses[:, :3, :3]
-        bad |= np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2)) > 1e-6
-        if bad.any():
-            raise ModelFileError(path, f"field 'poses': frame {int(np.argmax(bad))} is not a rigid transform "
-                                       f"(expected a rotation and last row 0 0 0 1)")
+        try:
+            se3.check_poses(poses, "field 'poses'")
+        except FacesimError as exc:
+            raise ModelFileError(path, str(exc)) from None
         files = set(data.files)
         if "reference_point" in files:
             ref = _field(data, path, "reference_point", lambda s: s == (3,), "(3,) mm")
@@ -229,7 +234,6 @@ def cmd_jaw_retarget(args) -> int:
 
 
 def cmd_jaw_pose(args) -> int:
-    from facesim import se3
     from facesim.jaw.posselt import PosseltRig
 
     rig = _load_rig(args.rig)
@@ -295,8 +299,6 @@ def cmd_jaw_generate(args) -> int:
         names = list(EXTREMES)
         poses = motion.poses(np.array([latent[n] for n in names]))
         if args.noise > 0:
-            from facesim import se3
-
             rng = np.random.default_rng(args.session)
             poses = poses @ se3.exp(np.c_[rng.normal(scale=args.noise / 100, size=(len(poses), 3)),
                                           rng.normal(scale=args.noise, size=(len(poses), 3))])

@@ -75,10 +75,7 @@ _GRID = 48                                       # d1 samples of the valid-range
 
 
 def _poses(poses, what: str = "poses", minimum: int = 1) -> np.ndarray:
-    poses = np.asarray(poses, dtype=np.float64)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) < minimum or not np.isfinite(poses).all():
-        raise FacesimError(f"{what}: expected finite (N, 4, 4) transforms with N >= {minimum}, got {poses.shape}")
-    return poses
+    return se3.check_poses(poses, what, minimum)
 
 
 # --- the se(3) chart ---------------------------------------------------------------------------
@@ -419,6 +416,20 @@ class NlpcaRig:
     names: tuple = MOTIONS
 
     def __post_init__(self):
+        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin), "nlpca rig: jaw frame (fields 'frame_origin', 'frame_axes')")
+        arrays = {"metric": self.chart.metric, "centre": self.net.centre, "z_rest": self.z_rest, "gain": self.gain,
+                  "grid": self.grid, "lower": self.lower, "upper": self.upper,
+                  **{f"net_{n}": w for n, w in self.net.weights.items()}}
+        for name, a in arrays.items():
+            a = np.asarray(a)
+            if a.dtype.kind not in "fiu" or not np.isfinite(a).all():
+                raise FacesimError(f"nlpca rig: field {name!r}: expected finite numbers, "
+                                   f"got {'NaN or inf' if a.dtype.kind in 'fiu' else f'dtype {a.dtype}'}")
+        if not (np.abs(np.diagonal(self.chart.metric)) > 0).all():
+            raise FacesimError("nlpca rig: field 'metric': expected an invertible upper triangular metric factor "
+                               "(non-zero diagonal)")
+        if not (np.isfinite(self.net.scale) and self.net.scale > 0):
+            raise FacesimError(f"nlpca rig: field 'meta.scale': expected a finite scale > 0 mm, got {self.net.scale!r}")
         if self.net.components != 3:
             raise FacesimError(f"nlpca rig: expected a 3-component autoencoder, got {self.net.components}")
         G = len(self.grid)
@@ -566,7 +577,7 @@ class NlpcaRig:
         """Read a rig written by :meth:`save` (one-line errors naming the file and field)."""
         keys = ("frame_origin", "frame_axes", "metric", "centre", "z_rest", "gain", "grid", "lower", "upper")
         arrays, meta = load_rig(path, "nlpca", keys + tuple(f"net_{n}" for n in _WEIGHT_NAMES), ("scale", "names"))
-        w = {n: arrays[f"net_{n}"].astype(np.float64) for n in _WEIGHT_NAMES}
+        w = {n: arrays[f"net_{n}"] for n in _WEIGHT_NAMES}
         h = w["W1"].shape[0] if w["W1"].ndim == 2 else -1
         expected = {"A": (3, 6), "W1": (h, 6), "b1": (h,), "W2": (3, h), "b2": (3,), "B": (6, 3), "W3": (h, 3),
                     "b3": (h,), "W4": (6, h), "b4": (6,)}
@@ -578,12 +589,15 @@ class NlpcaRig:
                 raise ModelFileError(path, f"field {key!r}: expected shape {shape}, got {arrays[key].shape}")
         try:
             chart = Se3Chart(JawFrame(arrays["frame_origin"], arrays["frame_axes"]), arrays["metric"].astype(np.float64))
-            net = Autoencoder(w, arrays["centre"].astype(np.float64), float(meta["scale"]))
+            net = Autoencoder({n: a.astype(np.float64) for n, a in w.items()}, arrays["centre"].astype(np.float64),
+                              float(meta["scale"]))
             return NlpcaRig(chart, net, arrays["z_rest"].astype(np.float64), arrays["gain"].astype(np.float64),
                             arrays["grid"].astype(np.float64), arrays["lower"].astype(np.float64),
                             arrays["upper"].astype(np.float64), tuple(str(n) for n in meta["names"]))
         except FacesimError as exc:
             raise ModelFileError(path, str(exc)) from None
+        except (TypeError, ValueError) as exc:      # strings where numbers belong, a scale that is not a number
+            raise ModelFileError(path, f"unreadable nlpca rig data ({type(exc).__name__}: {exc})") from None
 
 
 def _levenberg_marquardt(residual, d, iterations: int, h: float = 1e-6):

@@ -423,6 +423,17 @@ class PosseltRig:
     scale: float
     tmj: JawGeometry | None = None
 
+    def __post_init__(self):
+        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin), "posselt rig: jaw frame (fields 'frame_origin', 'frame_axes')")
+        for name in ("centres", "coefficients"):
+            a = np.asarray(getattr(self, name))
+            if a.dtype.kind not in "fiu" or not np.isfinite(a).all():
+                raise FacesimError(f"posselt rig: field {name!r}: expected finite numbers (the RBF map), "
+                                   f"got {'NaN or inf' if a.dtype.kind in 'fiu' else f'dtype {a.dtype}'}")
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise FacesimError(f"posselt rig: field 'meta.scale': expected a finite RBF length unit > 0 mm, "
+                               f"got {self.scale!r}")
+
     def made_for(self, geometry: JawGeometry, tolerance: float = 1e-6) -> bool:
         """Whether the rig was fitted to motion generated for the TMJ ``geometry`` (condyles,
         track, incisor within ``tolerance`` mm, same track length and maximum opening)."""
@@ -507,6 +518,8 @@ class PosseltRig:
                               c.astype(np.float64), w.astype(np.float64), float(meta["scale"]), tmj)
         except FacesimError as exc:
             raise ModelFileError(path, str(exc)) from None
+        except (TypeError, ValueError) as exc:      # strings where numbers belong, a scale that is not a number
+            raise ModelFileError(path, f"unreadable posselt rig data ({type(exc).__name__}: {exc})") from None
 
 
 def fit_posselt(session=None, *, poses=None, reference_point=None, border=None, frame: JawFrame | None = None,
@@ -530,9 +543,7 @@ def fit_posselt(session=None, *, poses=None, reference_point=None, border=None, 
             border = {c: session.frames(c) for c in CURVES}
     if poses is None or reference_point is None:
         raise FacesimError("fit_posselt: expected a session, or poses and reference_point")
-    poses = np.asarray(poses, dtype=np.float64)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) < 10 or not np.isfinite(poses).all():
-        raise FacesimError(f"poses: expected finite (N, 4, 4) with N >= 10, got {poses.shape}")
+    poses = se3.check_poses(poses, minimum=10)
     if not smoothing >= 0 or not scale > 0 or int(centres) < 4:
         raise FacesimError("fit_posselt: expected smoothing >= 0, scale > 0 mm and at least 4 centres")
     if isinstance(border, str) and border != "detect":

@@ -151,9 +151,9 @@ class RigJaw:
         """Controls ``(n,)`` of the rig pose closest to the model-frame pose ``T (4, 4)`` (Posselt:
         the sliders of the reference point; NLPCA: inverse kinematics; classic: the parameter fit on
         points around the reference point)."""
-        T = np.asarray(T, dtype=np.float64)
-        if T.shape != (4, 4) or not np.isfinite(T).all():
-            raise FacesimError(f"jaw pose: expected a finite 4x4 transform, got shape {T.shape}")
+        T = se3.check_rigid(T, "jaw pose")
+        if T.shape != (4, 4):
+            raise FacesimError(f"jaw pose: expected one 4x4 transform, got shape {T.shape}")
         pose = (self._unplace @ T @ self._place)[None]          # in the rig's skull frame
         if self.kind == "posselt":
             return self.rig.sliders_of(pose)[0]
