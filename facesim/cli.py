@@ -347,12 +347,14 @@ def cmd_solve_mocap(args) -> int:
 
     model = _load(args.model)
     data = read_markers(args.markers, units=args.units)
-    check_capture_scale(data, marker_spread(model.marker_positions())[0], args.markers, args.units)
     index, extra, missing = match_markers(model.markers.names, data.names)
     if (index >= 0).sum() < 3:
         raise FacesimError(f"{args.markers}: only {int((index >= 0).sum())} of the model's {model.n_markers} marker "
                            f"names found (file has {', '.join(data.names[:5])}...); expected the model's names "
                            "('facesim model info' lists them)")
+    matched = index >= 0   # the capture's size against the model's, on the markers both have (a unit mistake)
+    check_capture_scale(data.select([data.names[j] for j in index[matched]]),
+                        marker_spread(model.marker_positions()[matched])[0], args.markers, units_given=args.units)
     if extra or missing:
         print(f"markers: {int((index >= 0).sum())} matched; not in the model: {', '.join(extra) or '-'}; "
               f"not in the file: {', '.join(missing) or '-'}")
