@@ -62,7 +62,9 @@ def _some(bad: np.ndarray, noun: str, plural: str | None = None, index: np.ndarr
 
 def _num(v) -> str:
     """A value for a message: numbers as ``%.6g`` (``-0.1``, ``nan``), anything else as its repr."""
-    if isinstance(v, (int, float, np.number)) and not isinstance(v, bool):
+    if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
         return f"{float(v):.6g}"
     return repr(v)
 
@@ -557,8 +559,8 @@ def _check_content(model: FaceModel) -> None:
     bad = ~(np.isfinite(mus.sigma_max) & (mus.sigma_max >= 0))
     if bad.any():
         j = int(np.argmax(bad))
-        raise _FieldError("muscles.sigma_max", f"expected finite peak stresses sigma_max >= 0 MPa, "
-                                               f"{_some(bad, 'muscle')} are not ({mus.names[j]!r}: {_num(mus.sigma_max[j])})")
+        raise _FieldError("muscles.sigma_max", f"expected finite peak stresses sigma_max >= 0 MPa, {_some(bad, 'muscle')} "
+                                               f"are not ({mus.names[j]!r}: {_num(mus.sigma_max[j])})")
     bad = ~((mus.fraction > 0) & (mus.fraction <= 1 + 1e-9))
     if bad.any():
         raise _FieldError("muscles.fraction", f"expected volume fractions in (0, 1], {_some(bad, 'entry', 'entries')} "
@@ -575,7 +577,8 @@ def _check_content(model: FaceModel) -> None:
                                           f"{_some(bad, 'marker')} are not")
     bad = ~np.isfinite(mk.offset)
     if bad.any():
-        raise _FieldError("markers.offset", f"expected finite marker heights (mm), {_some(bad, 'marker')} are NaN or inf")
+        raise _FieldError("markers.offset", f"expected finite marker heights (mm), {_some(bad, 'marker')} are "
+                                            f"NaN or inf")
     for s in model.bones + model.colliders:
         bad = ~np.isfinite(s.vertices).all(axis=1)
         if bad.any():
@@ -725,7 +728,8 @@ def load_model(path) -> FaceModel:
         except ModelFileError:
             raise
         except _FieldError as exc:
-            raise ModelFileError(archive.path, f"field {_file_key(exc.field, archive.meta)!r}: {exc.expected}") from None
+            key = _file_key(exc.field, archive.meta)
+            raise ModelFileError(archive.path, f"field {key!r}: {exc.expected}") from None
         except (FacesimError, KeyError, TypeError, ValueError) as exc:
             raise ModelFileError(archive.path, f"inconsistent model data: {exc}") from None
 

@@ -91,7 +91,8 @@ def model_cases(good):
         "X_nan": ({"X": nan_X}, None, "X", f"expected finite node coordinates (mm), 2 of {n:,} nodes (first: node 3) "
                                           f"are NaN or inf"),
         "X_inf": ({"X": inf_X}, None, "X", f"1 of {n:,} nodes (first: node 5) are NaN or inf"),
-        "all_empty": ({**_empty(good), "muscle_sigma_max": np.zeros(0)}, M, "X", "expected at least one node, got none"),
+        "all_empty": (_empty(good), M, "X",
+                      "expected at least one node, got none"),
         "no_tets": (no_tets, None, "tets", "expected at least one tet"),
         "no_skin": ({"skin": a["skin"][:0], **no_markers}, {"marker_names": []}, "skin",
                     "expected at least one skin triangle"),

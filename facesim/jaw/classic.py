@@ -91,7 +91,8 @@ class ClassicRig:
     def __post_init__(self):
         if self.dof not in DOF:
             raise FacesimError(f"classic rig: unknown dof {self.dof!r} (expected one of {', '.join(DOF)})")
-        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin), "classic rig: jaw frame (fields 'frame_origin', 'frame_axes')")
+        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin),
+                        "classic rig: jaw frame (fields 'frame_origin', 'frame_axes')")
         origin = np.array(self.origin, dtype=np.float64)
         if origin.shape != (3,) or not np.isfinite(origin).all():
             raise FacesimError("classic rig: expected a finite pivot origin (3,) mm")

@@ -416,7 +416,8 @@ class NlpcaRig:
     names: tuple = MOTIONS
 
     def __post_init__(self):
-        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin), "nlpca rig: jaw frame (fields 'frame_origin', 'frame_axes')")
+        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin),
+                        "nlpca rig: jaw frame (fields 'frame_origin', 'frame_axes')")
         arrays = {"metric": self.chart.metric, "centre": self.net.centre, "z_rest": self.z_rest, "gain": self.gain,
                   "grid": self.grid, "lower": self.lower, "upper": self.upper,
                   **{f"net_{n}": w for n, w in self.net.weights.items()}}

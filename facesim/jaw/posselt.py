@@ -424,7 +424,8 @@ class PosseltRig:
     tmj: JawGeometry | None = None
 
     def __post_init__(self):
-        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin), "posselt rig: jaw frame (fields 'frame_origin', 'frame_axes')")
+        se3.check_rigid(se3.from_rt(self.frame.axes, self.frame.origin),
+                        "posselt rig: jaw frame (fields 'frame_origin', 'frame_axes')")
         for name in ("centres", "coefficients"):
             a = np.asarray(getattr(self, name))
             if a.dtype.kind not in "fiu" or not np.isfinite(a).all():
