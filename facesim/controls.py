@@ -12,14 +12,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from facesim.errors import FacesimError
+from facesim.se3 import check_rigid
 
 
 def as_transform(T, name: str) -> np.ndarray | None:
+    """``T`` as a read-only 4x4 float64 rigid transform (None stays None); a one-line
+    :class:`FacesimError` starting with ``name`` for anything else (a reflection, a scaling,
+    non-finite entries: :func:`facesim.se3.check_rigid`)."""
     if T is None:
         return None
-    T = np.array(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.isfinite(T).all() or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise FacesimError(f"{name}: expected a 4x4 homogeneous transform with last row (0, 0, 0, 1)")
+    T = np.array(T, dtype=np.float64) if np.asarray(T).dtype.kind in "biuf" else T
+    if np.shape(T) != (4, 4):
+        raise FacesimError(f"{name}: expected a 4x4 rigid transform, got shape {np.shape(T)}")
+    T = np.array(check_rigid(T, name, tolerance=1e-4), dtype=np.float64)   # 1e-4: matrices written to ~6 digits
     T.setflags(write=False)
     return T
 
