@@ -103,43 +103,45 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
 # ------------------------------------------------------------------ frame tasks
 def _solve_task(solve, spec: SimulatorSpec, space, options, target, k: int, i: int, state, markers=None):
     """A worker's task: frame ``k`` solved by ``solve`` (the tracker's one-frame solver, sent by
-    reference) from ``state = (_, controls, x, jacobian)`` of the frame before it (a Jacobian that
-    crossed processes lost its factorisation; fit_frame copes), on the spec's simulator with the
-    run's ``markers`` (None: the model's own)."""
-    _, controls, x, jacobian = state
-    return solve(with_markers(spec.build(), markers), space, options, target, k, i, controls, x, jacobian)
+    reference) from the warm start of ``state = (_, start)``, what the task before it returned (a
+    Jacobian that crossed processes lost its factorisation; fit_frame copes), on the spec's
+    simulator with the run's ``markers`` (None: the model's own)."""
+    return solve(with_markers(spec.build(), markers), space, options, target, k, i, state[1])
 
 
 def solve_on_cluster(client, solve, spec: SimulatorSpec, space, options, frames, P, runs, starts, markers=None):
     """Solve the runs of frames on the cluster of ``client``: every frame a task chained on the frame
     before it in its run (earlier frames first), solved on a worker by
-    ``solve(sim, space, options, P[i], frames[i], i, controls, x, jacobian) -> (row, controls, x,
-    jacobian)`` (a module-level function: tasks carry it by reference) from the state the previous
-    task returned; each run ``(first, stop, _)`` of ``runs`` starts from the controls in ``starts``.
-    ``markers``: the run's rebound markers (None: the model's). Yields the rows as they finish; the
-    tasks still pending are cancelled when the caller stops early."""
-    import operator
-
+    ``solve(sim, space, options, P[i], frames[i], i, start) -> (row, start of the next frame)`` (a
+    module-level function: tasks carry it by reference) from the start the previous task handed
+    on; each run ``(first, stop, _)`` of ``runs`` starts from its entry of ``starts``.
+    ``markers``: the run's rebound markers (None: the model's). Yields ``(row, start handed on)``
+    as the frames finish (the tracker saves the start: a resume continues from it); each result
+    is released once yielded, and the tasks still pending are cancelled when the caller stops
+    early."""
     from distributed import as_completed
 
     token = uuid.uuid4().hex[:8]
-    rows = []
-    for (first, stop, _), controls in zip(runs, starts):
-        state = (None, controls, None, None)
+    pending = {}
+    for (first, stop, _), start in zip(runs, starts):
+        state = (None, start)
         for i in range(first, stop):
-            # only the rows are held here: the scheduler keeps each state while the next frame needs it
+            # the scheduler keeps each result while the next frame needs it or until it is read here
             state = client.submit(_solve_task, solve, spec, space, options, P[i], int(frames[i]), i, state, markers,
                                   key=f"facesim-frame-{token}-{i}", priority=-i)
-            rows.append(client.submit(operator.getitem, state, 0, key=f"facesim-row-{token}-{i}", priority=-i))
+            pending[state.key] = state
         state = None
     finished = False
     try:
-        for fut in as_completed(rows):
-            yield fut.result()
+        for fut in as_completed(list(pending.values())):
+            result = fut.result()
+            del pending[fut.key]
+            fut.release()
+            yield result
         finished = True
     finally:
         if not finished:
-            client.cancel(rows)
+            client.cancel(list(pending.values()))
 
 
 __all__ = ["SimulatorSpec", "dask_client", "solve_on_cluster"]

@@ -30,7 +30,7 @@ frame's equilibrium warm-starts from it; workers build their simulator from a
 process). The client writes every frame as it arrives.
 
 Files in ``out_dir`` (append-only logs, :mod:`facesim.framelog`: one complete line per frame,
-flushed and synced; ``resume`` keeps the frames already written and solves only the others):
+synced to disk; ``resume`` keeps the frames already written and solves only the others):
 
 * ``activations.csv`` ``frame,<muscle>,...``; ``jaw.csv`` ``frame,<jaw parameter>,...``;
 * ``residuals.csv`` ``frame,rms,<marker>,...`` (mm, NaN for missing markers);
@@ -39,12 +39,28 @@ flushed and synced; ``resume`` keeps the frames already written and solves only 
 * ``chunks/`` while frames finish out of order: the four logs of the frames solved after a
   still unfinished one. The files above always hold the longest finished prefix of the sequence,
   in frame order; a frame moves there as soon as every frame before it is written, and
-  ``chunks/`` is removed when the run completes.
+  ``chunks/`` is removed when the run completes;
+* ``state/warm_KKKKK.npz`` while the run is unfinished: the warm start the last finished frame
+  of each chunk hands to the next one (full-precision controls, equilibrium, Jacobian and where
+  its factorised tangent was taken), written before the frame's log lines; at most two per chunk
+  at any time, all removed when the run completes;
+* ``run.json`` the inputs' fingerprints and ``.lock`` while the run writes
+  (:class:`facesim.runfolder.RunFolder`): a folder holding a run needs ``resume`` or
+  ``overwrite``, a resume with other inputs (model, capture, frames, jaw model, options) is
+  refused, naming them, and a second run into a folder being written stops at once.
+
+Resume is faithful: a run continues from the warm start of the frame before, as restored from
+``state/``, so the frames it solves are those an uninterrupted run would have written -- bit for
+bit where the solves are deterministic (direct or PARDISO linear solvers on one thread). Two things
+cannot be restored and make a resumed frame differ within the solvers' tolerances: the AMG
+hierarchy a simulator reuses across solves (``NewtonOptions(linear_solver="amg")``), and, on a
+cluster, the factorised tangent a Jacobian carries only while consecutive frames stay on one worker.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import functools
 import json
 import math
@@ -60,10 +76,13 @@ from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
-from facesim.inverse.jacobian import ControlSpace
+from facesim.fem.linear import make_linear_solver, single_blas_thread
+from facesim.fem.newton import Problem
+from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, default_jacobian_solver
 from facesim.inverse.parallel import SimulatorSpec, solve_on_cluster
 from facesim.mocap.binding import bind_neutral
 from facesim.mocap.stabilise import check_window, stabilise
+from facesim.runfolder import RunFolder, describe, fingerprint, finish, parts
 
 LOSSES = ("l2", "huber", "cauchy")
 LOG_COLUMNS = ("frame", "converged", "stop_reason", "gn_steps", "equilibria", "newton_iterations", "linear_solves",
@@ -71,6 +90,7 @@ LOG_COLUMNS = ("frame", "converged", "stop_reason", "gn_steps", "equilibria", "n
                "lip_penetration_mm", "teeth_penetration_mm", "seconds", "error")
 LOGS = ("activations", "jaw", "residuals", "frames")
 CHUNKS = "chunks"
+STATE = "state"
 
 
 @dataclass(frozen=True)
@@ -138,17 +158,33 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
     frame's ``Fit.jacobian`` (reused by :func:`fit_frame` while it stays accurate; each pass hands
     its own on to the next). ``frame``: the frame number the simulator's scripted colliders are
     posed at."""
-    options = options or TrackOptions()
+    fit, outliers, fits, _ = _fit_markers(sim, targets, controls, x0, space, options or TrackOptions(), jacobian,
+                                          frame, None)
+    return fit, outliers, fits
+
+
+def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame, tangent_at):
+    """:func:`fit_markers`, also following where the factorised tangent of each fit's Jacobian was
+    taken (``tangent_at`` of ``jacobian`` in, of the final fit's Jacobian out; see
+    :func:`_tangent_origin`)."""
     fits: list[Fit] = []
     targets = np.asarray(targets, dtype=np.float64)
     # a tracked frame (one with the previous frame's Jacobian) screens for outliers on the first
     # step's linear prediction, which lands close to the fit: the outliers then cost no refit
     screen = functools.partial(_outliers, target=targets, options=options) \
         if options.robust and jacobian is not None else None
+    origin = tangent_at
+
+    def fit_from(target, c, x, J, weights=None, screen=None):
+        nonlocal origin
+        fit = fit_frame(sim, target, c, x, space, options.fit, weights=weights, jacobian=J, screen=screen,
+                        frame=frame)
+        origin = _tangent_origin(fit, c, x, J, origin, space, frame)
+        fits.append(fit)
+        return fit
 
     def solve(target, c, x, J, screen=None):
-        fit = fit_frame(sim, target, c, x, space, options.fit, jacobian=J, screen=screen, frame=frame)
-        fits.append(fit)
+        fit = fit_from(target, c, x, J, screen=screen)
         w = np.ones(len(target))
         for _ in range(options.irls_steps if options.loss != "l2" else 0):
             w_new = loss_weights(np.linalg.norm(fit.markers - target, axis=1), options.loss, options.scale)
@@ -157,20 +193,52 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
             w = w_new
             if fit.report.stop_reason == "equilibrium_failed":
                 break
-            fit = fit_frame(sim, target, fit.controls, fit.x, space, options.fit, weights=w, jacobian=fit.jacobian,
-                            frame=frame)
-            fits.append(fit)
+            fit = fit_from(target, fit.controls, fit.x, fit.jacobian, weights=w)
         return fit
 
     fit = solve(targets, controls, x0, jacobian, screen)
     if fit.report.stop_reason == "equilibrium_failed":
-        return fit, [], fits
+        return fit, [], fits, origin
     outliers = _outliers(fit.markers, targets, options)
     if outliers != fit.report.screened and options.robust:   # the screen missed some, or was wrong
         cleaned = targets.copy()
         cleaned[outliers] = np.nan
         fit = solve(cleaned, fit.controls, fit.x, fit.jacobian)
-    return fit, outliers, fits
+    return fit, outliers, fits, origin
+
+
+def _tangent_origin(fit: Fit, controls: Controls, x0, jacobian, origin, space: ControlSpace, frame):
+    """Where the factorised tangent of ``fit.jacobian`` was taken, ``(controls, x, frame)``, for a
+    fit started from ``controls``, ``x0`` and ``jacobian`` (whose tangent was taken at
+    ``origin``); None when it has none, or when it was taken at a point of the fit not known here.
+
+    A fit that evaluated no Jacobian kept the tangent it was given. One whose Jacobian carries as
+    many secant updates as the fit made took its last evaluation before any step, where the
+    controls and positions were the start's (they change only with a step, and every step makes
+    one update): ``fit_frame`` evaluates there at ``space.apply(controls, space.vector(controls))``."""
+    J = fit.jacobian
+    if J is None or J.tangent is None:
+        return None
+    if jacobian is not None and J.tangent is jacobian.tangent:
+        return origin
+    rep = fit.report
+    if rep.jacobians and J.age == rep.secant_updates and x0 is not None and np.isfinite(x0).all():
+        return space.apply(controls, space.vector(controls)), np.asarray(x0, dtype=np.float64), frame
+    return None
+
+
+def _tangent(sim, options: TrackOptions, at) -> object:
+    """The factorised tangent at ``at = (controls, x, frame)`` as :func:`equilibrium_jacobian`
+    factorises it for :func:`fit_frame` there (the same energy, matrix and linear solver: the same
+    factors), without the Jacobian's columns; None for a solver that keeps no factorisation."""
+    controls, x, frame = at
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    solver = make_linear_solver(options.fit.linear_solver or default_jacobian_solver(sim.system.n_dofs))
+    if not hasattr(solver, "factorize"):
+        return None
+    with single_blas_thread():
+        K = Problem(sim.terms + sim.solve_terms(controls, frame), sim.system, x, controls.a).hessian(x, project=False)
+        return solver.factorize(K)
 
 
 @dataclass(frozen=True)
@@ -189,19 +257,37 @@ class _Solved:
         return self.stop_reason == "converged"
 
 
-def _solve_frame(sim, space, options, target, k: int, i: int, controls, x, jacobian=None):
-    """Fit frame ``k`` (position ``i``); returns the :class:`_Solved` and the state for the next
-    frame (controls, equilibrium, Jacobian). A frame whose equilibrium failed (or whose solve
-    raised a :class:`SolverError`) is written flagged, and the next frame starts from the state
-    this one started from, never from the failed one."""
+@dataclass(frozen=True)
+class _Start:
+    """The warm start a frame hands to the next frame of its chunk: its controls (full precision),
+    equilibrium ``x (n, 3)`` (None: solve it), Jacobian (None: evaluate one) and ``tangent_at``,
+    where the Jacobian's factorised tangent was taken, ``(controls, x, frame)`` (None: it has none)."""
+
+    controls: Controls
+    x: np.ndarray | None = None
+    jacobian: EquilibriumJacobian | None = None
+    tangent_at: tuple | None = None
+
+
+def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> tuple[_Solved, _Start]:
+    """Fit frame ``k`` (position ``i``) from ``start``; returns the :class:`_Solved` and the start of
+    the next frame. A frame whose equilibrium failed (or whose solve raised a
+    :class:`SolverError`) is written flagged, and the next frame starts from the state this one
+    started from, never from the failed one.
+
+    A Jacobian whose tangent was factorised at a point not known here (inside a fit, after a
+    step, or at a start solved inside it) has its tangent factorised anew at the fit's result, so
+    that every tangent handed on can be rebuilt from the frame's saved warm start on resume."""
     model = sim.model
+    controls, x, jacobian = start.controls, start.x, start.jacobian
     try:
-        fit, outliers, fits = fit_markers(sim, target, controls, x, space, options, jacobian, frame=k)
+        fit, outliers, fits, tangent_at = _fit_markers(sim, target, controls, x, space, options, jacobian, k,
+                                                       start.tangent_at)
     except SolverError as exc:
-        start = sim.attached_positions(controls, x)
-        P = model.marker_positions(start)
+        attached = sim.attached_positions(controls, x)
+        P = model.marker_positions(attached)
         rep = FitReport(stop_reason="equilibrium_failed", error=" ".join(str(exc).split()))
-        fit, outliers, fits = Fit(controls, start, P, rep, None), [], []
+        fit, outliers, fits, tangent_at = Fit(controls, attached, P, rep, None, equilibrium=False), [], [], None
     rep = fit.report
     r = np.linalg.norm(fit.markers - target, axis=1)
     if not np.isfinite(rep.marker_rms):
@@ -223,9 +309,13 @@ def _solve_frame(sim, space, options, target, k: int, i: int, controls, x, jacob
     )
     solved = _Solved(i, lines, total["gn_steps"], rep.marker_rms, tuple(model.markers.names[j] for j in outliers),
                      rep.stop_reason)
-    if rep.stop_reason == "equilibrium_failed":
-        return solved, controls, x, jacobian
-    return solved, fit.controls, fit.x, fit.jacobian
+    if rep.stop_reason == "equilibrium_failed" or not fit.equilibrium:
+        return solved, start
+    J = fit.jacobian
+    if J is not None and J.tangent is not None and tangent_at is None:
+        tangent_at = (J.controls, J.x, k)
+        J = dataclasses.replace(J, tangent=_tangent(sim, options, tangent_at))
+    return solved, _Start(fit.controls, fit.x, J, tangent_at if J is not None and J.tangent is not None else None)
 
 
 _MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
@@ -295,14 +385,19 @@ class _Outputs:
         (then also the frames after it that were waiting), else into ``chunks/``."""
         k = self.frames[i]
         self.done[k] = tuple(lines)
-        if i != self.n_merged:
-            if self.ahead is None:
-                self.ahead = self._open(self.out / CHUNKS, [])
-            self._write(self.ahead, lines)
-            return
-        while self.n_merged < len(self.frames) and self.frames[self.n_merged] in self.done:
-            self._write(self.merged, self.done[self.frames[self.n_merged]])
-            self.n_merged += 1
+        try:
+            if i != self.n_merged:
+                if self.ahead is None:
+                    self.ahead = self._open(self.out / CHUNKS, [])
+                self._write(self.ahead, lines)
+                return
+            while self.n_merged < len(self.frames) and self.frames[self.n_merged] in self.done:
+                self._write(self.merged, self.done[self.frames[self.n_merged]])
+                self.n_merged += 1
+        except BaseException:   # not written (all four lines): not a finished frame
+            if i >= self.n_merged:
+                del self.done[k]
+            raise
 
     def close(self) -> None:
         for logs in (self.merged, self.ahead or {}):
@@ -339,15 +434,17 @@ def _runs(n: int, chunk: int, done) -> list[tuple[int, int, bool]]:
 
 
 def _solve_here(sim, space, options, frames, P, runs, starts):
-    for (first, stop, _), controls in zip(runs, starts):
-        x = J = None
+    """Solve the ``runs`` one after the other in this process, each from its :class:`_Start`;
+    yields ``(_Solved, the _Start it hands on)`` per frame."""
+    for (first, stop, _), start in zip(runs, starts):
         for i in range(first, stop):
-            solved, controls, x, J = _solve_frame(sim, space, options, P[i], int(frames[i]), i, controls, x, J)
-            yield solved
+            solved, start = _solve_frame(sim, space, options, P[i], int(frames[i]), i, start)
+            yield solved, start
 
 
 def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None = None, start: Controls | None = None,
-          resume: bool = False, progress: bool = True, client=None, neutral=None) -> dict:
+          resume: bool = False, overwrite: bool = False, progress: bool = True, client=None, neutral=None,
+          info: dict | None = None) -> dict:
     """Fit every frame of ``P (F, r, 3)`` (mm, the model's marker order, NaN missing; frame numbers
     ``frames (F,)``, unique) and write the results into ``out_dir`` (see the module doc).
 
@@ -355,15 +452,20 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     :class:`~facesim.inverse.parallel.SimulatorSpec`;
     ``client``: a ``distributed.Client`` solving the chunks in parallel (needs a spec). ``start``:
     controls each chunk starts from (default rest). ``resume``: keep the frames in ``out_dir``
-    and solve only the others (a run continues from its last written frame, warm-started from
-    its controls). ``neutral (r, 3)`` or ``(k, r, 3)``: capture frames of the neutral face (model
+    and solve only the others, each run of them continuing from the saved warm start of the frame
+    before it (as an uninterrupted run would); refused when the run in the folder was made with
+    other inputs (model, simulator options, jaw model, ``P``, ``frames``, ``neutral``, ``start``,
+    ``options``; without ``options.chunk_size`` the run's own chunks are kept). ``overwrite``:
+    remove the run in ``out_dir`` first. Without either, a folder holding a run is refused, and so
+    is a folder another run is writing into. ``info``: entries recorded in ``run.json`` and
+    ``report.json`` as they are (e.g. the input file names); they are not compared on resume.
+    ``neutral (r, 3)`` or ``(k, r, 3)``: capture frames of the neutral face (model
     marker order, NaN missing, same coordinates as ``P``; several: the per-marker median after
     stabilisation); the model's markers are first rebound to where it puts
     them (:func:`facesim.mocap.binding.rebind_markers`, Sifakis 2005's binding of the capture to
     the skin). Returns the summary (also written to ``report.json``)."""
-    from tqdm import tqdm
-
     options = options or TrackOptions()
+    folder = RunFolder(out_dir, "solve-mocap", resume, overwrite)
     spec = sim if isinstance(sim, SimulatorSpec) else None
     if client is not None and spec is None:
         raise FacesimError("parallel tracking: pass a SimulatorSpec (model file and options) for the workers to "
@@ -376,6 +478,7 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         raise FacesimError(f"markers: expected ({len(frames)}, {model.n_markers}, 3) positions, got {P.shape}")
     if len(np.unique(frames)) != len(frames):
         raise FacesimError("frames: expected unique frame numbers")
+    record = _inputs(local, P, frames, neutral, start)
     rebinding = None
     if neutral is not None:
         bound, rebinding = bind_neutral(local, neutral, options.head)
@@ -383,16 +486,57 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         P, _ = stabilise(model, P, options.head_smoothing)
     if rebinding is not None:   # after stabilising: the head frame is the model's own rest head markers
         local = bound
-        model = local.model
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    n_workers = len(client.scheduler_info()["workers"]) if client is not None else 1
+    with folder:   # one run at a time in the folder, until report.json is written
+        chunk = options.chunk_size or (_recorded_chunk(folder.previous) if resume else None) or \
+            math.ceil(len(frames) / max(n_workers, 1)) or 1
+        record["options"] = describe(dataclasses.replace(options, chunk_size=chunk))
+        folder.start(record, functools.partial(_holds_a_run, folder.root), functools.partial(_clear, folder.root),
+                     info=info)
+        return _track(local, spec, client, options, frames, P, folder.root, chunk, start, rebinding, resume, progress,
+                      info, n_workers)
+
+
+def _inputs(sim, P, frames, neutral, start) -> dict:
+    """The run record's inputs (:mod:`facesim.runfolder`): what the results depend on, but the
+    options (added with the chunk size the run uses)."""
+    return {"model": parts(sim.model), "simulator": describe(sim.options),
+            "jaw_model": {"name": sim.jaw_model.name, "content": fingerprint(sim.jaw_model)},
+            "gain": fingerprint(getattr(sim.muscle, "gain", None)), "markers": fingerprint(P),
+            "frames": fingerprint(frames), "neutral": None if neutral is None else fingerprint(np.asarray(neutral)),
+            "start": None if start is None else describe(start)}
+
+
+def _recorded_chunk(record: dict | None) -> int | None:
+    chunk = ((record or {}).get("inputs") or {}).get("options", {}).get("chunk_size")
+    return chunk if isinstance(chunk, int) and chunk >= 1 else None
+
+
+def _holds_a_run(out: Path) -> bool:
+    return any((folder / f"{name}.csv").exists() for folder in (out, out / CHUNKS) for name in LOGS)
+
+
+def _clear(out: Path) -> None:
+    """Remove what a run writes (and nothing else) from the folder ``out``."""
+    for name in LOGS:
+        (out / f"{name}.csv").unlink(missing_ok=True)
+    (out / "report.json").unlink(missing_ok=True)
+    shutil.rmtree(out / CHUNKS, ignore_errors=True)
+    for path in (out / STATE).glob("warm_*.npz"):
+        path.unlink()
+
+
+def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start, rebinding, resume, progress, info,
+           n_workers) -> dict:
+    """The frames of :func:`track` in a claimed folder."""
+    from tqdm import tqdm
+
+    model = local.model
     space = ControlSpace.of(local)
     jaw_names = list(local.jaw_model.param_names)
     headers = {"activations": ["frame", *model.muscles.names], "jaw": ["frame", *jaw_names],
                "residuals": ["frame", "rms", *model.markers.names], "frames": list(LOG_COLUMNS)}
     n = len(frames)
-    n_workers = len(client.scheduler_info()["workers"]) if client is not None else 1
-    chunk = options.chunk_size or math.ceil(n / max(n_workers, 1)) or 1
     previous = {}
     if resume and (out / "report.json").is_file():
         try:
@@ -402,12 +546,35 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     outputs = _Outputs(out, headers, frames, resume)
     done = [int(k) in outputs.done for k in frames]
     runs = _runs(n, chunk, done)
-    cold = start or Controls(np.zeros(model.n_muscles), jaw=_rest_jaw(space))
-    starts = [outputs.controls(int(frames[first - 1]), space) if warm else cold for first, _, warm in runs]
-    summary = {"frames": n, "reused_frames": int(sum(done)), "chunk_size": chunk,
+    cold = _Start(start or Controls(np.zeros(model.n_muscles), jaw=_rest_jaw(space)))
+    starts, restored = [], 0
+    for first, _, warm in runs:
+        if not warm:
+            starts.append(cold)
+            continue
+        k = int(frames[first - 1])
+        saved = _load_warm(_warm_path(out, k), k, outputs.done[k], space, model)
+        if saved is None:   # no warm start on disk (a run of an older facesim): the written controls
+            starts.append(_Start(outputs.controls(k, space)))
+            continue
+        restored += 1
+        J = saved.jacobian
+        if saved.tangent_at is not None:
+            if client is None:   # factorised again where it was: the same factors as the run had
+                J = dataclasses.replace(J, tangent=_tangent(local, options, saved.tangent_at))
+            else:                # a factorisation does not travel to a worker (see EquilibriumJacobian)
+                saved = dataclasses.replace(saved, tangent_at=None)
+        starts.append(dataclasses.replace(saved, jacobian=J))
+    # the warm start each chunk's next frame needs: the saved one before each run; all others go
+    last_warm = {(first - 1) // chunk: int(frames[first - 1]) for first, _, warm in runs if warm}
+    keep = {_warm_path(out, k) for k in last_warm.values()}
+    for path in (out / STATE).glob("warm_*.npz"):
+        if path not in keep:
+            path.unlink(missing_ok=True)
+    summary = {**(info or {}), "frames": n, "reused_frames": int(sum(done)), "chunk_size": chunk,
                "workers": n_workers if client is not None else 0, "loss": options.loss, "rebinding": rebinding,
                "outliers": {k: v for k, v in previous.items() if k.lstrip("-").isdigit() and int(k) in outputs.done},
-               "status": "running"}
+               "warm_starts_restored": restored, "status": "running"}
     t_start = time.perf_counter()
     solved: dict[int, _Solved] = {}
     if client is not None:
@@ -417,11 +584,16 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         results = _solve_here(local, space, options, frames, P, runs, starts)
     try:
         with tqdm(total=n, initial=int(sum(done)), desc="solve-mocap", unit="frame", disable=not progress) as bar:
-            for s in results:
+            for s, handed_on in results:
+                k, c = int(frames[s.index]), s.index // chunk
+                _save_warm(_warm_path(out, k), k, handed_on)   # before the lines: a written frame has its warm start
                 outputs.add(s.index, s.lines)
+                if c in last_warm:
+                    _warm_path(out, last_warm[c]).unlink(missing_ok=True)
+                last_warm[c] = k
                 solved[s.index] = s
                 if s.outliers:
-                    summary["outliers"][str(int(frames[s.index]))] = list(s.outliers)
+                    summary["outliers"][str(k)] = list(s.outliers)
                 bar.set_postfix(rms=f"{s.rms:.2f}", steps=s.gn_steps, refresh=False)
                 bar.update(1)
         summary["status"] = "complete"
@@ -431,6 +603,15 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     finally:
         results.close()
         outputs.close()
+        failed = summary["status"] != "complete"
+
+        def tidy():
+            if outputs.n_merged == n:   # nothing left to resume: the warm starts go
+                for path in (out / STATE).glob("warm_*.npz"):
+                    path.unlink(missing_ok=True)
+                if (out / STATE).is_dir() and not any((out / STATE).iterdir()):
+                    (out / STATE).rmdir()
+
         order = sorted(solved)
         position = {int(k): i for i, k in enumerate(frames)}
         summary.update({
@@ -440,8 +621,90 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
             "outliers": dict(sorted(summary["outliers"].items(), key=lambda kv: position.get(int(kv[0]), 0))),
             **_stop_summary(outputs, frames),
         })
-        atomic_write(out / "report.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
+
+        def report():
+            atomic_write(out / "report.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
+
+        # a failed run reports its own error, not a consequence of it in these writes (a full disk)
+        finish((tidy, report), failed)
     return summary
+
+
+# ------------------------------------------------------------------ warm starts on disk
+def _warm_path(out: Path, k: int) -> Path:
+    return out / STATE / f"warm_{k:05d}.npz"
+
+
+def _put_controls(arrays: dict, prefix: str, c: Controls) -> None:
+    arrays[f"{prefix}_a"] = c.a
+    if c.jaw is not None:
+        arrays[f"{prefix}_jaw"] = np.asarray(c.jaw, dtype=np.float64)
+    if c.head is not None:
+        arrays[f"{prefix}_head"] = c.head
+
+
+def _get_controls(z, prefix: str) -> Controls:
+    def get(name):
+        return np.array(z[f"{prefix}_{name}"]) if f"{prefix}_{name}" in z.files else None
+
+    return Controls(get("a"), jaw=get("jaw"), head=get("head"))
+
+
+def _save_warm(path: Path, k: int, start: _Start) -> None:
+    """Write the warm start ``start`` that frame ``k`` hands on (atomically; uncompressed, it is
+    written every frame): controls, equilibrium, the Jacobian without its factorised tangent but
+    with where that was taken (see :class:`_Start`)."""
+    arrays = {"frame": np.int64(k)}
+    _put_controls(arrays, "c", start.controls)
+    if start.x is not None:
+        arrays["x"] = start.x
+    J = start.jacobian
+    if J is not None:
+        _put_controls(arrays, "J", J.controls)
+        arrays.update(J_x=J.x, J_dx=J.dx, J_dP=J.dP, J_age=np.int64(J.age))
+        if J.tangent is not None and start.tangent_at is not None:
+            controls, x, frame = start.tangent_at
+            _put_controls(arrays, "T", controls)
+            arrays.update(T_x=x, T_frame=np.int64(frame))
+
+    def write(tmp: Path):
+        with open(tmp, "wb") as f:   # a file object: numpy adds no ".npz" to the name
+            np.savez(f, **arrays)
+
+    atomic_write(path, write)
+
+
+def _load_warm(path: Path, k: int, lines, space: ControlSpace, model) -> _Start | None:
+    """The warm start saved for frame ``k``, or None when the file is missing, unreadable, of
+    another frame or shape, or its controls are not those written in the frame's ``lines``."""
+    import zipfile
+
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if int(z["frame"]) != k:
+                return None
+            controls = _get_controls(z, "c")
+            x = np.array(z["x"]) if "x" in z.files else None
+            J = at = None
+            if "J_a" in z.files:
+                J = EquilibriumJacobian(space, _get_controls(z, "J"), np.array(z["J_x"]), np.array(z["J_dx"]),
+                                        np.array(z["J_dP"]), age=int(z["J_age"]))
+                if "T_a" in z.files:
+                    at = (_get_controls(z, "T"), np.array(z["T_x"]), int(z["T_frame"]))
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, FacesimError):
+        return None
+    n3 = (model.n_nodes, 3)
+    if (controls.a.shape != (model.n_muscles,) or (x is not None and x.shape != n3) or
+            (J is not None and (J.x.shape != n3 or J.dx.shape != (3 * model.n_nodes, space.size)
+                                or J.dP.shape != (3 * model.n_markers, space.size)))
+            or (at is not None and at[1].shape != n3)):
+        return None
+    jaw = np.atleast_1d(controls.jaw) if space.n_jaw else []
+    if csv_line([k, *map(_fmt, controls.a)]) != lines[0] or csv_line([k, *map(_fmt, jaw)]) != lines[1]:
+        return None
+    return _Start(controls, x, J, at)
 
 
 def _stop_summary(outputs, frames) -> dict:

@@ -51,14 +51,30 @@ def test_track_recovers_a_sequence_and_writes_every_frame(sequence, box_model, t
     assert report["status"] == "complete"
 
 
-def test_resume_continues_after_the_last_written_frame(sequence, box_model, tmp_path):
+def test_resume_continues_after_the_last_written_frame(sequence, box_model, tmp_path, monkeypatch):
     sim, truth, P = sequence
     options = TrackOptions(fit=FitOptions(noise=0.01), head="none")
-    track(sim, np.arange(2), P[:2], tmp_path, options=options, progress=False)
+    solve = tracking._solve_frame
+    calls = []
+
+    def interrupted_at_third_frame(*args):
+        calls.append(args)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return solve(*args)
+
+    monkeypatch.setattr(tracking, "_solve_frame", interrupted_at_third_frame)
+    with pytest.raises(KeyboardInterrupt):
+        track(sim, np.arange(4), P, tmp_path, options=options, progress=False)
+    monkeypatch.undo()
+    # the capture of another run (here: fewer frames) does not continue this one
+    with pytest.raises(FacesimError, match="other inputs: markers, frames differ"):
+        track(sim, np.arange(2), P[:2], tmp_path, options=options, resume=True, progress=False)
     s = track(sim, np.arange(4), P, tmp_path, options=options, resume=True, progress=False)
-    assert s["reused_frames"] == 2 and s["solved_frames"] == 2
+    assert s["reused_frames"] == 2 and s["solved_frames"] == 2 and s["warm_starts_restored"] == 1
     A = np.loadtxt(tmp_path / "activations.csv", delimiter=",", skiprows=1)
     assert list(A[:, 0]) == [0, 1, 2, 3]
+    assert not (tmp_path / "state").exists()   # the warm starts go with the finished run
 
 
 def test_outlier_test_flags_far_residuals_only():
