@@ -77,9 +77,9 @@ class FrameLog:
         atomic_write(self.path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
         try:
             self.fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
-            self.size = os.fstat(self.fd).st_size
         except OSError as exc:
             raise FacesimError(f"{self.path}: cannot open for appending ({exc.strerror or exc})") from None
+        self.size = len(text.encode("utf-8"))
 
     def add(self, line: str) -> None:
         """Append ``line`` (one complete line, with its newline) and sync it to disk."""
