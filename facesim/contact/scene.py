@@ -38,6 +38,8 @@ _KEYS = {
 }
 _VECTORS = {"centre", "a", "b", "point", "normal"}
 _NUMBERS = {"radius", "spacing", "scale"}
+#: Positions and lengths beyond this (mm; 1 km) are refused as absurd: a collider is near the face.
+MAX_MM = 1e6
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,9 @@ def _vector(spec: str, key: str, value: str) -> np.ndarray:
         v = None
     if v is None or v.shape != (3,) or not np.isfinite(v).all():
         raise FacesimError(f"collider {spec!r}: {key}={value!r}: expected three numbers x:y:z (mm)")
+    if np.abs(v).max() > MAX_MM:
+        raise FacesimError(f"collider {spec!r}: {key}={value!r}: expected coordinates within {MAX_MM:g} mm of the "
+                           "origin (mm, model frame)")
     return v
 
 
@@ -92,6 +97,8 @@ def _number(spec: str, key: str, value: str) -> float:
         v = float("nan")
     if not (np.isfinite(v) and v > 0):
         raise FacesimError(f"collider {spec!r}: {key}={value!r}: expected a positive number")
+    if key != "scale" and v > MAX_MM:
+        raise FacesimError(f"collider {spec!r}: {key}={value!r}: expected at most {MAX_MM:g} mm")
     return v
 
 
@@ -102,6 +109,18 @@ def _file(spec: str, key: str, value: str, base) -> Path:
     if not p.is_file():
         raise FacesimError(f"collider {spec!r}: {key}={value!r}: no such file {p}")
     return p
+
+
+def _check_mesh_size(spec: str, path: Path, V: np.ndarray, spacing: float) -> None:
+    """Refuse a (scaled) mesh with coordinates that are not finite or beyond :data:`MAX_MM`, and a
+    grid spacing coarser than the mesh (its distance field would be two cells wide)."""
+    if not len(V) or not np.isfinite(V).all() or np.abs(V).max() > MAX_MM:
+        raise FacesimError(f"collider {spec!r}: {path}: expected finite vertices within {MAX_MM:g} mm of the origin "
+                           "(after scale), mm")
+    size = float((V.max(axis=0) - V.min(axis=0)).max())
+    if not spacing < size:
+        raise FacesimError(f"collider {spec!r}: spacing={spacing:g}: expected a grid spacing below the mesh's size "
+                           f"({size:.3g} mm)")
 
 
 def parse_collider_spec(spec: str, base=None, index: int = 0) -> SceneCollider:
@@ -144,6 +163,7 @@ def parse_collider_spec(spec: str, base=None, index: int = 0) -> SceneCollider:
         except Exception as exc:   # trimesh raises many types for unreadable files
             raise FacesimError(f"collider {spec!r}: {path}: cannot read a triangle mesh ({exc})") from None
         V = np.asarray(mesh.vertices, dtype=np.float64) * v.get("scale", 1.0)
+        _check_mesh_size(spec, path, V, v.get("spacing", 1.0))
         shape = MeshSDF.from_mesh(V, np.asarray(mesh.faces), spacing=v.get("spacing", 1.0), name=str(path))
     name = v.get("name", f"{kind}{index}")
     collider = Collider(shape, name=name)
