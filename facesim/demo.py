@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facesim._files import MESHES, atomic_write
-from facesim.errors import FacesimError
+from facesim._files import MESHES, atomic_write, open_npz
+from facesim.errors import FacesimError, ModelFileError
 from facesim.model import FaceModel
 
 #: The shipped clip (its truth is ``<stem>_truth.npz`` beside it).
@@ -267,9 +267,17 @@ def load_truth(clip) -> dict:
     if not path.is_file():
         raise FacesimError(f"{path}: no truth file for the clip {clip}; make the clip with "
                            "'python -m facesim.demo --make'")
-    with np.load(path, allow_pickle=False) as z:
-        truth = {k: z[k] for k in z.files}
-    truth["meta"] = json.loads(str(truth["meta"]))
+    with open_npz(path, "a demo clip truth .npz ('python -m facesim.demo --make')") as z:
+        try:
+            truth = {k: z[k] for k in z.files}
+        except Exception as exc:  # noqa: BLE001 (a corrupt member: zlib.error, BadZipFile, ValueError ...)
+            raise ModelFileError(path, f"unreadable field ({type(exc).__name__}); make the clip again") from None
+    try:
+        truth["meta"] = json.loads(str(truth["meta"]))
+    except (KeyError, ValueError):
+        truth["meta"] = None
+    if not isinstance(truth["meta"], dict):
+        raise ModelFileError(path, "field 'meta': expected a JSON object; make the clip again")
     return truth
 
 
