@@ -33,7 +33,8 @@ for contact in (True, False):
     opts = EquilibriumOptions(lip_contact=contact, teeth_contact=contact)
     fs = FaceSimulator(model, opts, jaw_model="sliding-condyle")
     t = time.time()
-    s = track(fs, np.arange(n), P, f"{out}/contact_{contact}", options=TrackOptions(head="none"), progress=False)
+    s = track(fs, np.arange(n), P, f"{out}/contact_{contact}", options=TrackOptions(head="none"), progress=False,
+              overwrite=True)
     rows = open(f"{out}/contact_{contact}/frames.csv").read()
     print("contact", contact, f"{time.time()-t:.1f}s", s["stop_reasons"], s["marker_rms"])
     print(rows)

@@ -379,8 +379,10 @@ def cmd_solve_mocap(args) -> int:
                            chunk_size=args.chunk_size, head_smoothing=args.head_smoothing)
     parallel = args.workers is not None or args.scheduler is not None
     with dask_client(args.workers, args.scheduler) if parallel else nullcontext() as client:
-        s = track(spec, frames, P, args.output, options=options, resume=args.resume, progress=not args.quiet,
-                  client=client, neutral=neutral)
+        s = track(spec, frames, P, args.output, options=options, resume=args.resume, overwrite=args.overwrite,
+                  progress=not args.quiet, client=client, neutral=neutral,
+                  info={"model": str(args.model), "markers": str(args.markers), "jaw_model": args.jaw_model,
+                        "frames": args.frames, "bind_frames": args.bind_frames, "units": args.units})
     plot_track(args.output)
     if args.render:
         from facesim.viz.solve import render_solve
@@ -394,8 +396,9 @@ def cmd_solve_mocap(args) -> int:
         print(f"outlier markers: {sum(map(len, s['outliers'].values()))} in {len(s['outliers'])} of {len(frames)} "
               f"frames ({'dropped, frames refitted' if options.robust else 'kept in the fit'}; see report.json)")
     rms = s["marker_rms"]
-    print(f"solved {s['solved_frames']} frames ({s['reused_frames']} reused) in {s['seconds']:.1f} s; marker RMS "
-          f"median {np.median(rms) if rms else float('nan'):.3f} mm -> {args.output}")
+    quality = f"; marker RMS median {np.median(rms):.3f} mm" if rms else ""
+    print(f"solved {s['solved_frames']} frames ({s['reused_frames']} reused) in {s['seconds']:.1f} s{quality} "
+          f"-> {args.output}")
     _warn_unconverged(s, Path(args.output) / "frames.csv")
     return 0
 
@@ -498,7 +501,7 @@ def _add_budget_option(parser) -> None:
                         help="wall-clock budget of one frame: a frame still unsolved after S seconds stops, is flagged "
                              "(stop_reason time_limit in frames.csv and report.json) and the run goes on with the next "
                              f"(default: {FRAME_SECONDS:g} s plus {1e3 * SECONDS_PER_UNKNOWN:g} ms per unknown of the "
-                             "model, 135 s for the coarse face)")
+                             "model, 330 s for the coarse face)")
 
 
 def _colliders(args, base: Path) -> list:
@@ -721,7 +724,14 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--solver", choices=("amg", "direct", "pardiso"), default="amg",
                        help="linear solver of the equilibria (the Jacobians use MKL PARDISO when pypardiso is "
                             "installed, else SuperLU or, above 150K unknowns, AMG) (default: %(default)s)")
-    solve.add_argument("--resume", action="store_true", help="continue the run in OUT_DIR")
+    again = solve.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true",
+                       help="continue the interrupted run in OUT_DIR (refused when the model, capture or options "
+                            "differ from the run's: the message names them); the frames solved after the resume "
+                            "point are those of an uninterrupted run")
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace the results of an earlier run in OUT_DIR (without --resume or --overwrite, a "
+                            "folder holding a run is an error)")
     solve.add_argument("--render", action="store_true",
                        help="also render the solved frames side by side with the capture (left: the captured "
                             "markers, stabilised; right: the simulated face with its markers and lines to the "

@@ -496,7 +496,8 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     # bind the markers to the skin on the neutral frames the clip starts with (Sifakis 2005): the
     # clip was made on another mesh, where the same landmark can sit millimetres away
     hold = neutral_frames(len(data.frames))
-    summary = track(sim, frame_numbers, P, out_dir, options=options, progress=progress, neutral=P_all[:hold])
+    summary = track(sim, frame_numbers, P, out_dir, options=options, progress=progress, neutral=P_all[:hold],
+                    overwrite=True)   # the demo always solves its clip afresh
     bound = bind_neutral(sim, P_all[:hold], options.head)[0]   # the markers as track bound them (~0.1 s)
     outputs = plot_track(out_dir)
     outputs.append(plot_recovery(truth, out_dir))

@@ -164,7 +164,10 @@ def head_increment(h, centre) -> np.ndarray:
 @dataclass
 class EquilibriumJacobian:
     """Derivatives at one equilibrium: ``dx (3n, nc)`` of all node positions and ``dP (3r, nc)`` of
-    the markers with respect to the control vector of ``space`` (columns in ``space`` order)."""
+    the markers with respect to the control vector of ``space`` (columns in ``space`` order).
+    ``tangent``: the factorised tangent of the last exact evaluation, assembled at ``tangent_at``
+    ``= (controls, x, frame)`` (kept through secant updates, so the factorisation can be rebuilt
+    where it was taken, e.g. when a run resumes)."""
 
     space: ControlSpace
     controls: Controls
@@ -175,6 +178,7 @@ class EquilibriumJacobian:
     linear_iterations: list = field(default_factory=list)
     tangent: object = None   # factorised tangent of the last exact evaluation (direct solver), else None
     age: int = 0             # secant updates since the last exact evaluation (0: exact)
+    tangent_at: tuple | None = None   # (controls, x, frame) the tangent was assembled at (None: no tangent)
 
     def __getstate__(self):
         # a factorisation does not pickle (SuperLU): a Jacobian sent to another process (a dask
@@ -310,11 +314,12 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
             view[:, j, sh.start + 3 + j] = 1.0
     dP = marker_jacobian(model, x) @ dx
     t2 = time.perf_counter()
+    tangent = getattr(solver, "lu", None)
     return EquilibriumJacobian(space, controls, x, dx, dP,
                                seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
                                         "total": t2 - t0},
                                linear_iterations=list(solver.stats.iterations[n_before:]),
-                               tangent=getattr(solver, "lu", None))
+                               tangent=tangent, tangent_at=None if tangent is None else (controls, x, frame))
 
 
 CHORD_LOOKAHEAD = 3   # chord iterations worth one Newton step (assembly + a few preconditioned CG iterations)

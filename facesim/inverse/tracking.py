@@ -72,6 +72,7 @@ from pathlib import Path
 import numpy as np
 
 from facesim._files import atomic_write
+from facesim.budget import TIME_LIMIT, time_budget
 from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.framelog import FrameLog, csv_line, read_lines
@@ -158,28 +159,21 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
     frame's ``Fit.jacobian`` (reused by :func:`fit_frame` while it stays accurate; each pass hands
     its own on to the next). ``frame``: the frame number the simulator's scripted colliders are
     posed at."""
-    fit, outliers, fits, _ = _fit_markers(sim, targets, controls, x0, space, options or TrackOptions(), jacobian,
-                                          frame, None)
-    return fit, outliers, fits
+    return _fit_markers(sim, targets, controls, x0, space, options or TrackOptions(), jacobian, frame)
 
 
-def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame, tangent_at):
-    """:func:`fit_markers`, also following where the factorised tangent of each fit's Jacobian was
-    taken (``tangent_at`` of ``jacobian`` in, of the final fit's Jacobian out; see
-    :func:`_tangent_origin`)."""
+def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame):
+    """:func:`fit_markers` (the module doc)."""
     fits: list[Fit] = []
     targets = np.asarray(targets, dtype=np.float64)
     # a tracked frame (one with the previous frame's Jacobian) screens for outliers on the first
     # step's linear prediction, which lands close to the fit: the outliers then cost no refit
     screen = functools.partial(_outliers, target=targets, options=options) \
         if options.robust and jacobian is not None else None
-    origin = tangent_at
 
     def fit_from(target, c, x, J, weights=None, screen=None):
-        nonlocal origin
         fit = fit_frame(sim, target, c, x, space, options.fit, weights=weights, jacobian=J, screen=screen,
                         frame=frame)
-        origin = _tangent_origin(fit, c, x, J, origin, space, frame)
         fits.append(fit)
         return fit
 
@@ -196,35 +190,17 @@ def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacob
             fit = fit_from(target, fit.controls, fit.x, fit.jacobian, weights=w)
         return fit
 
-    fit = solve(targets, controls, x0, jacobian, screen)
-    if fit.report.stop_reason == "equilibrium_failed":
-        return fit, [], fits, origin
-    outliers = _outliers(fit.markers, targets, options)
-    if outliers != fit.report.screened and options.robust:   # the screen missed some, or was wrong
-        cleaned = targets.copy()
-        cleaned[outliers] = np.nan
-        fit = solve(cleaned, fit.controls, fit.x, fit.jacobian)
-    return fit, outliers, fits, origin
-
-
-def _tangent_origin(fit: Fit, controls: Controls, x0, jacobian, origin, space: ControlSpace, frame):
-    """Where the factorised tangent of ``fit.jacobian`` was taken, ``(controls, x, frame)``, for a
-    fit started from ``controls``, ``x0`` and ``jacobian`` (whose tangent was taken at
-    ``origin``); None when it has none, or when it was taken at a point of the fit not known here.
-
-    A fit that evaluated no Jacobian kept the tangent it was given. One whose Jacobian carries as
-    many secant updates as the fit made took its last evaluation before any step, where the
-    controls and positions were the start's (they change only with a step, and every step makes
-    one update): ``fit_frame`` evaluates there at ``space.apply(controls, space.vector(controls))``."""
-    J = fit.jacobian
-    if J is None or J.tangent is None:
-        return None
-    if jacobian is not None and J.tangent is jacobian.tangent:
-        return origin
-    rep = fit.report
-    if rep.jacobians and J.age == rep.secant_updates and x0 is not None and np.isfinite(x0).all():
-        return space.apply(controls, space.vector(controls)), np.asarray(x0, dtype=np.float64), frame
-    return None
+    # the frame's wall-clock budget covers all its fits (an inner fit's budget cannot extend it)
+    with time_budget(options.fit.max_seconds):
+        fit = solve(targets, controls, x0, jacobian, screen)
+        if fit.report.stop_reason == "equilibrium_failed" or not fit.equilibrium:
+            return fit, [], fits
+        outliers = _outliers(fit.markers, targets, options)
+        if outliers != fit.report.screened and options.robust and fit.report.stop_reason != TIME_LIMIT:
+            cleaned = targets.copy()   # the screen missed some, or was wrong
+            cleaned[outliers] = np.nan
+            fit = solve(cleaned, fit.controls, fit.x, fit.jacobian)
+    return fit, outliers, fits
 
 
 def _tangent(sim, options: TrackOptions, at) -> object:
@@ -275,19 +251,18 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     :class:`SolverError`) is written flagged, and the next frame starts from the state this one
     started from, never from the failed one.
 
-    A Jacobian whose tangent was factorised at a point not known here (inside a fit, after a
-    step, or at a start solved inside it) has its tangent factorised anew at the fit's result, so
-    that every tangent handed on can be rebuilt from the frame's saved warm start on resume."""
+    The Jacobian handed on carries where its factorised tangent was assembled
+    (``EquilibriumJacobian.tangent_at``), so a resume can factorise it again there from the frame's
+    saved warm start."""
     model = sim.model
     controls, x, jacobian = start.controls, start.x, start.jacobian
     try:
-        fit, outliers, fits, tangent_at = _fit_markers(sim, target, controls, x, space, options, jacobian, k,
-                                                       start.tangent_at)
+        fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k)
     except SolverError as exc:
         attached = sim.attached_positions(controls, x)
         P = model.marker_positions(attached)
         rep = FitReport(stop_reason="equilibrium_failed", error=" ".join(str(exc).split()))
-        fit, outliers, fits, tangent_at = Fit(controls, attached, P, rep, None, equilibrium=False), [], [], None
+        fit, outliers, fits = Fit(controls, attached, P, rep, None, equilibrium=False), [], []
     rep = fit.report
     r = np.linalg.norm(fit.markers - target, axis=1)
     if not np.isfinite(rep.marker_rms):
@@ -312,10 +287,7 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     if rep.stop_reason == "equilibrium_failed" or not fit.equilibrium:
         return solved, start
     J = fit.jacobian
-    if J is not None and J.tangent is not None and tangent_at is None:
-        tangent_at = (J.controls, J.x, k)
-        J = dataclasses.replace(J, tangent=_tangent(sim, options, tangent_at))
-    return solved, _Start(fit.controls, fit.x, J, tangent_at if J is not None and J.tangent is not None else None)
+    return solved, _Start(fit.controls, fit.x, J, J.tangent_at if J is not None and J.tangent is not None else None)
 
 
 _MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
@@ -561,7 +533,8 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
         J = saved.jacobian
         if saved.tangent_at is not None:
             if client is None:   # factorised again where it was: the same factors as the run had
-                J = dataclasses.replace(J, tangent=_tangent(local, options, saved.tangent_at))
+                J = dataclasses.replace(J, tangent=_tangent(local, options, saved.tangent_at),
+                                        tangent_at=saved.tangent_at)
             else:                # a factorisation does not travel to a worker (see EquilibriumJacobian)
                 saved = dataclasses.replace(saved, tangent_at=None)
         starts.append(dataclasses.replace(saved, jacobian=J))
