@@ -99,7 +99,11 @@ def read_table(path, what: str, first: str = "frame", example: str = "") -> Tabl
 
 def read_text(path: Path, what: str, expected: str = "") -> str:
     """The text of ``path`` (UTF-8, optional byte-order mark); one-line errors for a file that is
-    not UTF-8 text (binary, UTF-16: NUL bytes) or cannot be read. ``what`` e.g. ``"a TRC file"``."""
+    not UTF-8 text (binary, UTF-16: NUL bytes), is not a regular file (a folder, a named pipe or a
+    device would block or never end) or cannot be read. ``what`` e.g. ``"a TRC file"``."""
+    if not path.is_file():
+        raise FacesimError(f"{path}: no such file" if not path.exists() else
+                           f"{path}: not a regular file (a folder, pipe or device); expected {what}")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -58,6 +58,46 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _positive(maximum: float, what: str = "a number"):
+    """argparse type: a finite number > 0 and <= ``maximum``."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            v = float("nan")
+        if not (0.0 < v <= maximum):   # NaN fails too
+            raise argparse.ArgumentTypeError(f"expected {what} > 0 and <= {maximum:g}, got {text!r}")
+        return v
+    return parse
+
+
+def _count(minimum: int, maximum: int):
+    """argparse type: an integer in [minimum, maximum]."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            v = None
+        if v is None or not minimum <= v <= maximum:
+            raise argparse.ArgumentTypeError(f"expected an integer from {minimum} to {maximum}, got {text!r}")
+        return v
+    return parse
+
+
+def _span(text: str) -> str:
+    """argparse type for FIRST:LAST frame ranges: not empty (checked against the frames later)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected FIRST:LAST frame numbers, e.g. 0:9, got an empty range")
+    return text
+
+
+def _folder(text: str) -> str:
+    """argparse type for an output folder: not empty (an empty name would write into the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder name, got an empty one")
+    return text
+
+
 def _opacity(text: str) -> float:
     try:
         v = float(text)
@@ -362,8 +402,8 @@ def cmd_solve_mocap(args) -> int:
     P[:, index >= 0] = data.P[:, index[index >= 0]]
     frames = data.frames
     # rebind the model's markers to the capture's neutral frames
-    neutral = P[frame_mask(args.bind_frames, frames, "--bind-frames")] if args.bind_frames else None
-    if args.frames:
+    neutral = P[frame_mask(args.bind_frames, frames, "--bind-frames")] if args.bind_frames is not None else None
+    if args.frames is not None:
         keep = frame_mask(args.frames, frames, "--frames")
         frames, P = frames[keep], P[keep]
     # workers build their simulator from the spec (model path, options); built here first, so a bad
@@ -479,7 +519,7 @@ def _add_contact_options(parser, relative_to: str, default_on: bool = False) -> 
     if default_on:
         parser.add_argument("--no-contact", action="store_true",
                             help="no lip and no teeth contact (the lips may pass through each other and the teeth)")
-    parser.add_argument("--contact-stiffness", type=float, default=CONTACT_STIFFNESS, metavar="K",
+    parser.add_argument("--contact-stiffness", type=_positive(1e6), default=CONTACT_STIFFNESS, metavar="K",
                         help="penalty stiffness of all contact, N/mm^3 (default: %(default)s)")
 
 
@@ -533,7 +573,7 @@ def build_parser() -> argparse.ArgumentParser:
                "Regenerate the clip: 'python -m facesim.demo --make'.")
     demo.add_argument("-o", "--output", default="facesim_demo", metavar="OUT_DIR",
                       help="folder for the results (default: %(default)s)")
-    demo.add_argument("--frames", metavar="FIRST:LAST", help="solve only these frames of the clip (inclusive), e.g. 5:15")
+    demo.add_argument("--frames", type=_span, metavar="FIRST:LAST", help="solve only these frames of the clip (inclusive), e.g. 5:15")
     demo.add_argument("--clip", metavar="F.c3d",
                       help="another clip made by 'python -m facesim.demo --make' (its truth F_truth.npz beside "
                            "it; default: the shipped meshes/demo_clip.c3d)")
@@ -554,14 +594,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "paper (>= 350K simulated tets, slow).")
     build.add_argument("--resolution", choices=RESOLUTIONS, default="coarse",
                        help="mesh resolution (default: %(default)s)")
-    build.add_argument("--seed", type=int, default=0,
+    build.add_argument("--seed", type=_count(0, 2**32 - 1), default=0,
                        help="random seed of the procedural anatomy (default: %(default)s)")
     build.add_argument("-o", "--output", required=True, metavar="M.npz", help="model file to write")
     build.add_argument("--mesh-from", metavar="OLD.npz",
                        help="reuse the flesh tet mesh of an earlier model of the same seed and resolution instead "
                             "of running fTetWild (whose output differs from run to run): the rebuilt model is "
                             "then identical to OLD.npz's arrays")
-    build.add_argument("--refine", type=int, default=0, metavar="N",
+    build.add_argument("--refine", type=_count(0, 3), default=0, metavar="N",
                        help="refine the --mesh-from mesh N times 1:8 (edge midpoints; deterministic, no fTetWild), "
                             "e.g. a paper-size model from the medium one: --resolution paper --mesh-from "
                             "meshes/face_medium.npz --refine 1 (default: %(default)s)")
@@ -637,7 +677,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3; posselt alone is the model's own rig "
                                "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")
     _add_contact_options(simulate, "A.csv")
-    simulate.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
+    simulate.add_argument("-o", "--output", required=True, type=_folder, metavar="OUT_DIR", help="output folder")
     simulate.add_argument("--render", action="store_true",
                           help="also render every frame to OUT/png/frame_KKKKK.png (off screen)")
     simulate.add_argument("--video", action="store_true",
@@ -681,7 +721,7 @@ def build_parser() -> argparse.ArgumentParser:
                "the fit (iteratively reweighted Gauss-Newton).")
     solve.add_argument("--model", required=True, metavar="M.npz", help="model file")
     solve.add_argument("--markers", required=True, metavar="F", help="capture: .c3d, .trc or .csv (mm unless stated)")
-    solve.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
+    solve.add_argument("-o", "--output", required=True, type=_folder, metavar="OUT_DIR", help="output folder")
     solve.add_argument("--units", choices=("mm", "cm", "m"), help="override the file's length unit")
     solve.add_argument("--jaw-model", default="sliding-condyle",
                        metavar="{sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
@@ -690,19 +730,21 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--head", choices=("procrustes", "none"), default="procrustes",
                        help="stabilise the head with the head markers, or take the capture as already stabilised "
                             "(default: %(default)s)")
-    solve.add_argument("--head-smoothing", type=int, default=0, metavar="FRAMES",
+    solve.add_argument("--head-smoothing", type=_count(0, 10001), default=0, metavar="FRAMES",
                        help="smooth the head stabilisation over this many frames (odd, >= 3; 0: off): the few head "
                             "markers' noise otherwise shakes the whole face; keep the window shorter than the "
                             "head's fastest motion (default: %(default)s)")
-    solve.add_argument("--frames", metavar="FIRST:LAST",
+    solve.add_argument("--frames", type=_span, metavar="FIRST:LAST",
                        help="solve only these frames (inclusive; either end may be left out, e.g. 10: ; one number: "
                             "that frame)")
-    solve.add_argument("--bind-frames", metavar="FIRST:LAST",
+    solve.add_argument("--bind-frames", type=_span, metavar="FIRST:LAST",
                        help="frames of the capture showing the neutral face: the model's markers are first bound "
                             "to the skin where these frames put them (per-marker median; Sifakis 2005), instead "
                             "of the model's own marker placement")
-    solve.add_argument("--noise", type=float, default=0.5, help="marker noise level, mm (default: %(default)s)")
-    solve.add_argument("--max-steps", type=int, default=5, help="Gauss-Newton steps per frame (default: %(default)s)")
+    solve.add_argument("--noise", type=_positive(50.0), default=0.5,
+                       help="marker noise level, mm (default: %(default)s)")
+    solve.add_argument("--max-steps", type=_count(1, 1000), default=5,
+                       help="Gauss-Newton steps per frame (default: %(default)s)")
     solve.add_argument("--no-robust", action="store_true",
                        help="keep outlier markers in the fit (still reported); by default a frame with outliers is "
                             "refitted without them")
@@ -710,15 +752,15 @@ def build_parser() -> argparse.ArgumentParser:
                        help="per-marker loss on the marker distance: l2 (least squares), huber (linear beyond "
                             "--loss-scale) or cauchy (logarithmic beyond it), the robust ones by iteratively "
                             "reweighted Gauss-Newton (default: %(default)s)")
-    solve.add_argument("--loss-scale", type=float, metavar="MM",
+    solve.add_argument("--loss-scale", type=_positive(1000.0), metavar="MM",
                        help="distance where the robust loss starts discounting a marker, mm (default: 3 x --noise)")
     engine = solve.add_mutually_exclusive_group()
-    engine.add_argument("--workers", type=int, metavar="N",
+    engine.add_argument("--workers", type=_count(1, 1024), metavar="N",
                         help="solve chunks of the sequence in parallel on a local dask cluster of N processes")
     engine.add_argument("--scheduler", metavar="ADDRESS",
                         help="solve chunks in parallel on a running dask.distributed cluster (e.g. tcp://host:8786); "
                              "its workers must see the model file at the same path")
-    solve.add_argument("--chunk-size", type=int, metavar="FRAMES",
+    solve.add_argument("--chunk-size", type=_count(1, 10**9), metavar="FRAMES",
                        help="frames per chunk, each starting cold (default: the frames divided evenly among the "
                             "workers; one chunk without --workers/--scheduler)")
     solve.add_argument("--solver", choices=("amg", "direct", "pardiso"), default="amg",

@@ -8,6 +8,7 @@ capture in other units and expects the right ``--units`` suggestion (and the rig
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -428,3 +429,38 @@ def test_select_keeps_the_named_markers(capture):
     sub = data.select(["nose_tip", "not_a_marker", data.names[0]])
     assert sub.names == ("nose_tip", data.names[0]) and sub.P.shape == (len(data.frames), 2, 3)
     np.testing.assert_array_equal(sub.P[:, 1], data.P[:, 0])
+
+
+# ------------------------------------------------------------------ files that would block or crash
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes are POSIX")
+@pytest.mark.parametrize("reader", ["activations", "markers", "rig"])
+def test_a_named_pipe_is_refused_not_read(reader, tmp_path):
+    """Opening a named pipe nobody writes to blocks for ever: readers refuse anything but a regular file."""
+    from facesim.controls_io import read_activations_csv
+    from facesim.jaw.rigfile import rig_kind
+    from facesim.mocap.io import read_markers
+
+    pipe = tmp_path / {"activations": "a.csv", "markers": "m.trc", "rig": "r.npz"}[reader]
+    os.mkfifo(pipe)
+    read = {"activations": lambda p: read_activations_csv(p, ("m",)), "markers": read_markers, "rig": rig_kind}[reader]
+    with pytest.raises(FacesimError, match="not a regular file|expected a TRC file"):
+        read(pipe)
+
+
+@pytest.mark.parametrize("cut", [100, 518, 739, 1030])
+def test_a_c3d_cut_inside_its_header_or_parameters_is_refused_before_ezc3d(cut, tmp_path):
+    """ezc3d hangs (739 bytes) or crashes the process (518) on a file cut inside its parameter
+    section: the layout is checked first, and the error says the file is cut short."""
+    import subprocess
+    import sys
+
+    from facesim._files import MESHES
+
+    whole = (MESHES / "demo_clip.c3d").read_bytes()
+    path = tmp_path / "cut.c3d"
+    path.write_bytes(whole[:cut])
+    code = ("import sys\nfrom facesim.errors import FacesimError\nfrom facesim.mocap.io import read_markers\n"
+            f"try:\n    read_markers({str(path)!r})\nexcept FacesimError as e:\n    print(e)\n    sys.exit(2)\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2, (run.returncode, run.stderr[-300:])
+    assert run.stdout.startswith(f"{path}: ") and len(run.stdout.splitlines()) == 1

@@ -88,7 +88,11 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
         try:
             client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as exc:
-            raise FacesimError(f"cannot reach the dask scheduler at {scheduler} ({exc})") from None
+            raise FacesimError(f"cannot reach the dask scheduler at {scheduler} ({' '.join(str(exc).split())})") \
+                from None
+        except (ValueError, TypeError) as exc:   # distributed's address parsing: "missing port number" ...
+            raise FacesimError(f"--scheduler {scheduler!r}: not a dask scheduler address ({' '.join(str(exc).split())}); "
+                               "expected e.g. tcp://host:8786") from None
         with client:
             yield client
         return

@@ -57,6 +57,10 @@ class PosesFile:
         return P, front_weights(P, frame)
 
 
+#: The largest magnitude a number of a poses file may have (mm: 100 m, far beyond any head).
+MAX_VALUE = 1e5
+
+
 def _field(data, path, key, shape_ok, expected: str, dtype=np.float64):
     """The array ``key`` of a poses file as ``dtype`` (None: as stored), of a shape ``shape_ok``
     accepts; numbers stored as numbers (integers for an integer ``dtype``: frame indices stored as
@@ -73,6 +77,11 @@ def _field(data, path, key, shape_ok, expected: str, dtype=np.float64):
             bad = ~np.isfinite(a).reshape(len(a), -1).all(axis=1) if a.ndim else np.ones(1, bool)
             raise ModelFileError(path, f"field {key!r}: expected finite values, got NaN or inf in "
                                        f"{int(bad.sum()):,} of {len(bad):,} rows (first: row {int(np.argmax(bad))})")
+        if a.size and np.abs(a).max() > MAX_VALUE:   # positions of a head in mm are far below it
+            bad = (np.abs(a).reshape(len(a), -1) > MAX_VALUE).any(axis=1) if a.ndim else np.ones(1, bool)
+            raise ModelFileError(path, f"field {key!r}: expected values within +-{MAX_VALUE:g} (mm), got "
+                                       f"{np.abs(a).max():g} in {int(bad.sum()):,} of {len(bad):,} rows "
+                                       f"(first: row {int(np.argmax(bad))})")
         a = a.astype(dtype)
     if not shape_ok(a.shape):
         raise ModelFileError(path, f"field {key!r}: expected {expected}, got shape {a.shape}")
@@ -349,17 +358,22 @@ def cmd_jaw_fit_model(args) -> int:
 
 
 # ------------------------------------------------------------------ parser
-def _at_least(minimum, kind=float):
-    """argparse type: a finite ``kind`` (float or int) >= ``minimum``."""
+#: The largest capture noise a generated session may have, mm (a noise beyond it buries the motion).
+MAX_NOISE_MM = 10.0
+
+
+def _at_least(minimum, kind=float, maximum=None):
+    """argparse type: a finite ``kind`` (float or int) >= ``minimum`` (and <= ``maximum``)."""
     what = "an integer" if kind is int else "a number"
+    upper = "" if maximum is None else f" and <= {maximum:g}"
 
     def parse(text: str):
         try:
             v = kind(text)
-        except ValueError:
+        except (ValueError, OverflowError):
             v = None
-        if v is None or not np.isfinite(v) or v < minimum:
-            raise argparse.ArgumentTypeError(f"expected {what} >= {minimum:g}, got {text!r}")
+        if v is None or not np.isfinite(v) or v < minimum or (maximum is not None and v > maximum):
+            raise argparse.ArgumentTypeError(f"expected {what} >= {minimum:g}{upper}, got {text!r}")
         return v
     return parse
 
@@ -391,7 +405,7 @@ def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
     fit.add_argument("-o", "--output", required=True, metavar="RIG.npz", help="rig file to write")
     fit.add_argument("--iterations", type=_at_least(1, int), default=1000,
                      help="nlpca: L-BFGS iterations of the autoencoder (default: %(default)s)")
-    fit.add_argument("--seed", type=int, default=0, help="nlpca: seed of the hidden layers (default: %(default)s)")
+    fit.add_argument("--seed", type=_at_least(0, int), default=0, help="nlpca: seed of the hidden layers (default: %(default)s)")
     fit.set_defaults(func=cmd_jaw_fit)
 
     ev = sub.add_parser("eval", help="error of a rig on poses (mean, 95th percentile, max, mm)",
@@ -443,9 +457,9 @@ def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
     fm.add_argument("--model", required=True, metavar="M.npz", help="face model file")
     fm.add_argument("-o", "--output", metavar="RIG.npz", help="rig file to write (default: M_posselt.npz next to "
                                                               "the model)")
-    fm.add_argument("--session", type=int, default=1, metavar="SEED",
+    fm.add_argument("--session", type=_at_least(0, int), default=1, metavar="SEED",
                     help="seed of the generated session the rig is fitted to (default: %(default)s)")
-    fm.add_argument("--noise", type=_at_least(0.0), default=0.0,
+    fm.add_argument("--noise", type=_at_least(0.0, maximum=MAX_NOISE_MM), default=0.0,
                     help="capture noise added to the generated poses, mm (default: %(default)s)")
     fm.set_defaults(func=cmd_jaw_fit_model)
 
@@ -454,16 +468,16 @@ def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
                                      "(facesim.jaw.motion): a capture-like session with labelled border movements, "
                                      "chewing, speech and free moves, or with --extremes the five extremal poses "
                                      "retargeting needs.")
-    gen.add_argument("--subject", type=int, default=None, metavar="SEED",
+    gen.add_argument("--subject", type=_at_least(0, int), default=None, metavar="SEED",
                      help="random subject (TMJ and incisal ranges) of this seed (default: the default subject)")
     gen.add_argument("--model", metavar="M.npz",
                      help="the face model whose TMJ moves (default: the shipped model's); without --subject its own "
                           "subject (maximum opening and condylar translation within the model's limits)")
-    gen.add_argument("--session", type=int, default=0, metavar="SEED",
+    gen.add_argument("--session", type=_at_least(0, int), default=0, metavar="SEED",
                      help="seed of the session's durations, amplitudes and noise (default: %(default)s)")
     gen.add_argument("--kinds", nargs="+", choices=("border", "chewing", "speech", "free"),
                      default=["border", "chewing", "speech", "free"], help="movements, in order (default: all)")
-    gen.add_argument("--noise", type=_at_least(0.0), default=0.03,
+    gen.add_argument("--noise", type=_at_least(0.0, maximum=MAX_NOISE_MM), default=0.03,
                      help="capture noise, mm (rotation noise/100 rad) (default: %(default)s)")
     gen.add_argument("--extremes", action="store_true", help="write the five extremal poses instead of a session")
     gen.add_argument("-o", "--output", required=True, metavar="P.npz", help="poses file to write")

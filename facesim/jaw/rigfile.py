@@ -50,6 +50,9 @@ def load_rig(path, kind: str, array_keys, meta_keys) -> tuple[dict[str, np.ndarr
 def rig_kind(path) -> str:
     """The ``kind`` of the rig stored in ``path`` (for loaders that dispatch on it)."""
     path = Path(path)
+    if not path.is_file():   # np.load of a named pipe blocks for ever
+        raise ModelFileError(path, "no such file (expected a facesim jaw rig .npz)" if not path.exists() else
+                             "not a regular file (expected a facesim jaw rig .npz)")
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))

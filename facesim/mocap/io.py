@@ -338,6 +338,9 @@ def read_c3d(path) -> MarkerData:
     path = Path(path)
     if not path.is_file():
         raise FacesimError(f"{path}: no such C3D file" if not path.exists() else f"{path}: expected a C3D file")
+    broken = _c3d_structure(path)   # ezc3d hangs or crashes on a file cut inside its sections
+    if broken:
+        raise FacesimError(f"{path}: not a readable C3D file ({broken})")
     try:
         c = ezc3d.c3d(str(path), extract_forceplat_data=False)
     except Exception as exc:   # ezc3d raises plain RuntimeErrors for malformed files
@@ -386,6 +389,39 @@ def read_c3d(path) -> MarkerData:
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         raise FacesimError(f"{path}: parameter POINT:RATE {rate:g}; expected a frame rate > 0 (Hz)")
     return MarkerData(names, frames, P, rate, units)
+
+
+def _c3d_structure(path: Path) -> str | None:
+    """What is wrong with the layout of the C3D file at ``path`` before ezc3d reads it (ezc3d
+    hangs or crashes the process on a file cut inside its parameter section), else None: the
+    512-byte header with the key byte 0x50, the parameter section's first block (header byte 1)
+    and its length in blocks (byte 3 of the section), and the first data block (header word 9)
+    all within the file. C3D user guide, ch. 3."""
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(512)
+            if len(head) < 512:
+                return f"{size} bytes: shorter than the 512-byte C3D header"
+            if head[1] != 0x50:
+                return f"byte 2 is {head[1]:#04x}, not the C3D key 0x50"
+            first_param = head[0]
+            if first_param < 2 or (first_param - 1) * 512 + 4 > size:
+                return f"the parameter section starts at block {first_param}, beyond the file's {size} bytes"
+            f.seek((first_param - 1) * 512)
+            section = f.read(4)
+    except OSError as exc:
+        return f"cannot read ({exc.strerror or exc})"
+    blocks, processor = section[2], section[3] - 83
+    if processor not in (1, 2, 3):
+        return f"processor type {section[3]} in the parameter section, expected 84, 85 or 86"
+    end = (first_param - 1 + blocks) * 512
+    if blocks < 1 or end > size:
+        return f"the parameter section of {blocks} blocks ends at byte {end}, beyond the file's {size} bytes (cut short?)"
+    (start,) = struct.unpack((">" if processor == 3 else "<") + "H", head[16:18])
+    if start < 1 or (start - 1) * 512 > size:
+        return f"the data start at block {start}, beyond the file's {size} bytes (cut short?)"
+    return None
 
 
 def _c3d_cut_short(path: Path, n_frames: int) -> str | None:
