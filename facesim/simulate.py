@@ -261,6 +261,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     that did not converge, seconds, options and output paths.
     """
     from facesim.fem.equilibrium import EquilibriumOptions
+    from facesim.fem.plausible import check_colliders, check_jaw
     from facesim.kinematics.jaw_models import make_jaw_model
     from facesim.session import Simulation
 
@@ -270,6 +271,12 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
                                contact_stiffness=options.contact_stiffness)   # checked before anything runs
     jaw_model = make_jaw_model(model, jaw_model)
     A, frames, J = _validate(model, activations, frames, jaw, jaw_model)
+    # what no solve could balance is refused before any (facesim.fem.plausible); the CLI checks first,
+    # naming its files
+    posed = J if jaw is not None else None
+    if posed is not None:
+        check_jaw(model, jaw_model, frames, posed, "jaw")
+    check_colliders(model, setup.colliders, frames, jaw_model, posed, "colliders")
     sim = None
 
     def simulation() -> Simulation:   # built on first use: a run with nothing left to do skips the setup
