@@ -53,3 +53,23 @@ def test_single_blas_thread_is_reentrant_and_solvers_are_named():
         assert float(np.ones(20_000) @ np.ones(20_000)) == 20_000.0
     with pytest.raises(FacesimError, match="linear_solver"):
         make_linear_solver("cholesky")
+
+
+def test_pardiso_finds_mkl_once_per_process(monkeypatch):
+    """pypardiso searches the whole sys.prefix tree for libmkl_rt in every solver it makes (0.45 s,
+    paid by every Jacobian); the first factorisation keeps the library's path in PYPARDISO_MKL_RT,
+    which later ones use, and the factors stay correct."""
+    pytest.importorskip("pypardiso")
+    import os
+
+    import scipy.sparse as sp
+
+    from facesim.fem.linear import PardisoFactor
+
+    monkeypatch.delenv("PYPARDISO_MKL_RT", raising=False)
+    A = sp.diags([-1.0, 2.5, -1.0], [-1, 0, 1], shape=(50, 50)).tocsr()
+    b = np.arange(50.0)
+    PardisoFactor(A)
+    assert "mkl_rt" in os.environ.get("PYPARDISO_MKL_RT", "")
+    x = PardisoFactor(A).solve(b)
+    np.testing.assert_allclose(A @ x, b, atol=1e-10)
