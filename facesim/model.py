@@ -41,6 +41,11 @@ MODEL_FORMAT = NpzFormat(FORMAT_NAME, FORMAT_VERSION, what="a facesim model .npz
 #: The rigid bodies flesh can be attached to, and what a rigid surface can move with.
 BONES = ("cranium", "jaw")
 SIDES = ("L", "R", "M")
+#: Bounds of a model in mm: coordinates (a head is ~300 mm across, its origin between the condyles),
+#: the bounding-box diagonal (from a small test block to a whole body), marker heights off the skin.
+MAX_COORDINATE_MM = 1e4
+EXTENT_MM = (1.0, 1e4)
+MAX_MARKER_HEIGHT_MM = 100.0
 
 
 class _FieldError(FacesimError):
@@ -315,6 +320,9 @@ class JawGeometry:
                 raise FacesimError(f"jaw.{name}: expected shape (3,), got {v.shape}")
             if not np.isfinite(v).all():
                 raise _FieldError(f"jaw.{name}", f"expected 3 finite numbers, got {v.tolist()}")
+            if np.abs(v).max() > MAX_COORDINATE_MM:
+                raise _FieldError(f"jaw.{name}", f"expected a point within +-{MAX_COORDINATE_MM:g} mm of the origin, "
+                                                 f"got {', '.join(f'{c:.3g}' for c in v)}")
             object.__setattr__(self, name, v)
         if not abs(np.linalg.norm(self.track_direction) - 1.0) <= 1e-9:
             raise _FieldError("jaw.track_direction", "expected a unit vector")
@@ -520,6 +528,14 @@ def _check_content(model: FaceModel) -> None:
     bad = ~np.isfinite(X).all(axis=1)
     if bad.any():
         raise _FieldError("X", f"expected finite node coordinates (mm), {_some(bad, 'node')} are NaN or inf")
+    far = np.abs(X).max(axis=1) > MAX_COORDINATE_MM
+    if far.any():
+        raise _FieldError("X", f"expected node coordinates within +-{MAX_COORDINATE_MM:g} mm of the origin, "
+                               f"{_some(far, 'node')} are further (up to {np.abs(X).max():.3g} mm)")
+    extent = float(np.linalg.norm(np.ptp(X, axis=0)))
+    if not EXTENT_MM[0] <= extent <= EXTENT_MM[1]:
+        raise _FieldError("X", f"the model spans {extent:.3g} mm (bounding-box diagonal); expected a face in mm, "
+                               f"{EXTENT_MM[0]:g} to {EXTENT_MM[1]:g} mm (a model stored in m or cm?)")
     if not len(tets):
         raise _FieldError("tets", "expected at least one tet, got none")
     volume = signed_volumes(X, tets)
@@ -579,11 +595,19 @@ def _check_content(model: FaceModel) -> None:
     if bad.any():
         raise _FieldError("markers.offset", f"expected finite marker heights (mm), {_some(bad, 'marker')} are "
                                             f"NaN or inf")
+    far = np.abs(mk.offset) > MAX_MARKER_HEIGHT_MM
+    if far.any():
+        raise _FieldError("markers.offset", f"expected marker heights within +-{MAX_MARKER_HEIGHT_MM:g} mm of the "
+                                            f"skin, {_some(far, 'marker')} are further")
     for s in model.bones + model.colliders:
         bad = ~np.isfinite(s.vertices).all(axis=1)
         if bad.any():
             raise _FieldError(f"{s.name}.vertices", f"expected finite vertex coordinates (mm), "
                                                     f"{_some(bad, 'vertex', 'vertices')} are NaN or inf")
+        far = np.abs(s.vertices).max(axis=1, initial=0.0) > MAX_COORDINATE_MM
+        if far.any():
+            raise _FieldError(f"{s.name}.vertices", f"expected vertex coordinates within +-{MAX_COORDINATE_MM:g} mm "
+                                                    f"of the origin, {_some(far, 'vertex', 'vertices')} are further")
 
 
 # --------------------------------------------------------------------- format

@@ -392,7 +392,7 @@ def rig_cases(rigs):
         "nlpca_grid": ("nlpca", {"grid": np.array([0.0, np.nan, 2.0, 3.0])},
                        "nlpca rig: field 'grid': expected finite numbers, got NaN or inf"),
         "nlpca_weights": ("nlpca", {"net_W3": np.full((4, 3), np.inf)}, "nlpca rig: field 'net_W3': expected finite"),
-        "nlpca_text": ("nlpca", {"gain": np.array(["a", "b", "c"])}, "unreadable nlpca rig data (ValueError"),
+        "nlpca_text": ("nlpca", {"gain": np.array(["a", "b", "c"])}, "field 'gain': expected real numbers"),
         "nlpca_metric": ("nlpca", {"metric": np.zeros((6, 6))}, "field 'metric': expected an invertible"),
         "posselt_centres": ("posselt", {"centres": centres},
                             "posselt rig: field 'centres': expected finite numbers (the RBF map), got NaN or inf"),

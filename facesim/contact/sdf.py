@@ -410,6 +410,10 @@ class KinematicPath:
         if missing:
             raise FacesimError(f"{table.path}: line {table.header_line}: missing column(s) {', '.join(missing)}; "
                                "expected a header like 'frame,x,y,z'")
+        unknown = [c for c in table.header[1:] if c not in ("x", "y", "z")]
+        if unknown:   # a rotation or a second object the path cannot hold: refused, not ignored
+            raise FacesimError(f"{table.path}: line {table.header_line}: unknown column {unknown[0]!r}; expected "
+                               "exactly 'frame,x,y,z' (mm)")
         return cls.from_centres(collider, frame_numbers(table), numbers(table, ("x", "y", "z")))
 
     def transform_at(self, frame: float) -> np.ndarray:

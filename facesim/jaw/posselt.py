@@ -246,6 +246,10 @@ class Shield:
             raise FacesimError(f"shield: expected curves (6, K >= 4, 3), got {curves.shape}")
         if not np.isfinite(curves).all():
             raise FacesimError("shield: curves must be finite")
+        extent = float(np.linalg.norm(np.ptp(curves.reshape(-1, 3), axis=0)))
+        if not extent > 1e-3:   # the envelope spans millimetres; a point-like one maps every slider to it
+            raise FacesimError(f"shield: the border curves span {extent:.3g} mm; expected an envelope of the "
+                               "jaw's range of motion (millimetres)")
         curves.setflags(write=False)
         self.curves = curves
         knots = np.linspace(0.0, 1.0, curves.shape[1])
@@ -503,7 +507,7 @@ class PosseltRig:
         """Read a rig written by :meth:`save` (one-line errors naming the file and field)."""
         arrays, meta = load_rig(path, "posselt", ("frame_origin", "frame_axes", "curves", "centres", "coefficients"),
                                 ("scale", "curves"))
-        if tuple(meta["curves"]) != CURVES:
+        if not isinstance(meta["curves"], list) or tuple(meta["curves"]) != CURVES:
             raise ModelFileError(path, f"field 'meta.curves': expected {list(CURVES)}")
         c, w = arrays["centres"], arrays["coefficients"]
         if c.ndim != 2 or c.shape[1] != 3 or w.shape != (len(c) + 4, 3):

@@ -18,6 +18,8 @@ from facesim.errors import ModelFileError
 
 RIG_FORMAT = "facesim-jaw-rig"
 RIG_VERSION = 1
+#: The largest magnitude of a rig's numbers (mm: 1 km; a head's are far below it).
+MAX_VALUE = 1e6
 
 
 def _format(kind: str) -> NpzFormat:
@@ -44,7 +46,15 @@ def load_rig(path, kind: str, array_keys, meta_keys) -> tuple[dict[str, np.ndarr
     with read_npz(path, _format(kind), check_kind) as archive:
         for key in meta_keys:
             archive.field(key)
-        return {key: archive.array(key) for key in array_keys}, archive.meta
+        arrays = {key: archive.array(key) for key in array_keys}
+    for key, a in arrays.items():   # a rig is numbers: refuse strings, booleans, complex ones before any cast
+        if a.dtype.kind not in "fiu":
+            raise ModelFileError(path, f"field {key!r}: expected real numbers, stored as dtype {a.dtype}")
+        finite = np.abs(a[np.isfinite(a)]) if a.size else a
+        if finite.size and finite.max() > MAX_VALUE:
+            raise ModelFileError(path, f"field {key!r}: expected values within +-{MAX_VALUE:g} (mm or rad), got "
+                                       f"{finite.max():g}")
+    return arrays, archive.meta
 
 
 def rig_kind(path) -> str:
