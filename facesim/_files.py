@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,7 +62,7 @@ def open_npz(path, what: str) -> np.lib.npyio.NpzFile:
         raise ModelFileError(path, f"no such file (expected {what})")
     try:
         data = np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+    except Exception as exc:  # noqa: BLE001 (a damaged zip raises BadZipFile, NotImplementedError, zlib.error ...)
         raise ModelFileError(path, f"not a readable .npz file ({type(exc).__name__})") from None
     if not isinstance(data, np.lib.npyio.NpzFile):
         raise ModelFileError(path, f"not an .npz archive (a single .npy array?): expected {what}")
@@ -139,7 +138,11 @@ def read_npz(path, fmt: NpzFormat, check: Callable[[Path, dict], object] | None 
         if "meta" not in data.files:
             raise ModelFileError(path, f"field 'meta' missing: not {fmt.name}")
         try:
-            meta = json.loads(str(data["meta"]))
+            raw = data["meta"]
+        except Exception as exc:  # noqa: BLE001 (a corrupt member: zlib.error, BadZipFile, NotImplementedError ...)
+            raise ModelFileError(path, f"field 'meta' unreadable ({type(exc).__name__})") from None
+        try:
+            meta = json.loads(str(raw))
         except (json.JSONDecodeError, ValueError):
             raise ModelFileError(path, "field 'meta': expected a JSON string") from None
         if not isinstance(meta, dict):

@@ -515,7 +515,11 @@ class FaceModel:
 
 # -------------------------------------------------------------------- content
 #: physical ranges of the material parameters, MPa: (name, lower bound, lower bound included)
+#: and an upper bound far above any soft tissue (bone's moduli are ~1e4 MPa, a near-incompressible
+#: kappa ~1e3 times the shear modulus); the largest peak muscle stress, MPa (muscle: ~0.3 MPa)
 _TISSUE_RANGES = (("c10", 0.0, False), ("c01", 0.0, True), ("kappa", 0.0, False))
+MAX_MODULUS_MPA = {"c10": 1e4, "c01": 1e4, "kappa": 1e7}
+MAX_SIGMA_MPA = 100.0
 
 
 def _check_content(model: FaceModel) -> None:
@@ -567,16 +571,18 @@ def _check_content(model: FaceModel) -> None:
         for name, low, closed in _TISSUE_RANGES:
             v = getattr(t, name)
             ok = isinstance(v, (int, float, np.number)) and not isinstance(v, bool) and np.isfinite(v) and \
-                (v >= low if closed else v > low)
+                (v >= low if closed else v > low) and v <= MAX_MODULUS_MPA[name]
             if not ok:
-                raise _FieldError(f"tissues[{i}].{name}", f"expected {name} {'>=' if closed else '>'} {low:g} MPa "
-                                                          f"and finite for tissue {t.name!r}, got {_num(v)}")
+                raise _FieldError(f"tissues[{i}].{name}", f"expected {name} {'>=' if closed else '>'} {low:g} MPa, "
+                                                          f"<= {MAX_MODULUS_MPA[name]:g} MPa and finite for tissue "
+                                                          f"{t.name!r}, got {_num(v)}")
     mus = model.muscles
-    bad = ~(np.isfinite(mus.sigma_max) & (mus.sigma_max >= 0))
+    bad = ~(np.isfinite(mus.sigma_max) & (mus.sigma_max >= 0) & (mus.sigma_max <= MAX_SIGMA_MPA))
     if bad.any():
         j = int(np.argmax(bad))
-        raise _FieldError("muscles.sigma_max", f"expected finite peak stresses sigma_max >= 0 MPa, {_some(bad, 'muscle')} "
-                                               f"are not ({mus.names[j]!r}: {_num(mus.sigma_max[j])})")
+        raise _FieldError("muscles.sigma_max", f"expected finite peak stresses 0 <= sigma_max <= {MAX_SIGMA_MPA:g} "
+                                               f"MPa, {_some(bad, 'muscle')} are not ({mus.names[j]!r}: "
+                                               f"{_num(mus.sigma_max[j])})")
     bad = ~((mus.fraction > 0) & (mus.fraction <= 1 + 1e-9))
     if bad.any():
         raise _FieldError("muscles.fraction", f"expected volume fractions in (0, 1], {_some(bad, 'entry', 'entries')} "
@@ -604,6 +610,9 @@ def _check_content(model: FaceModel) -> None:
         if bad.any():
             raise _FieldError(f"{s.name}.vertices", f"expected finite vertex coordinates (mm), "
                                                     f"{_some(bad, 'vertex', 'vertices')} are NaN or inf")
+        if len(s.faces) < 4:   # a closed surface has at least a tetrahedron's four triangles
+            raise _FieldError(f"{s.name}.faces", f"expected a closed surface of at least 4 triangles, got "
+                                                 f"{len(s.faces)}")
         far = np.abs(s.vertices).max(axis=1, initial=0.0) > MAX_COORDINATE_MM
         if far.any():
             raise _FieldError(f"{s.name}.vertices", f"expected vertex coordinates within +-{MAX_COORDINATE_MM:g} mm "

@@ -97,18 +97,22 @@ def model_cases(good):
         "no_skin": ({"skin": a["skin"][:0], **no_markers}, {"marker_names": []}, "skin",
                     "expected at least one skin triangle"),
         "c10_negative": ({}, _tissues(good, 0, c10=-1e-3), "meta.tissues[0].c10",
-                         "expected c10 > 0 MPa and finite for tissue 'fat', got -0.001"),
+                         "expected c10 > 0 MPa, <= 10000 MPa and finite for tissue 'fat', got -0.001"),
         "c10_zero": ({}, _tissues(good, 1, c10=0.0), "meta.tissues[1].c10", "expected c10 > 0 MPa"),
         "c10_nan": ({}, _tissues(good, 0, c10=float("nan")), "meta.tissues[0].c10", "got nan"),
         "c01_negative": ({}, _tissues(good, 0, c01=-1e-4), "meta.tissues[0].c01", "expected c01 >= 0 MPa"),
         "kappa_negative": ({}, _tissues(good, 1, kappa=-0.1), "meta.tissues[1].kappa",
-                           "expected kappa > 0 MPa and finite for tissue 'muscle', got -0.1"),
+                           "expected kappa > 0 MPa, <= 1e+07 MPa and finite for tissue 'muscle', got -0.1"),
         "kappa_zero": ({}, _tissues(good, 0, kappa=0), "meta.tissues[0].kappa", "expected kappa > 0 MPa"),
         "kappa_inf": ({}, _tissues(good, 0, kappa=float("inf")), "meta.tissues[0].kappa", "got inf"),
         "kappa_text": ({}, _tissues(good, 0, kappa="stiff"), "meta.tissues[0].kappa", "got 'stiff'"),
         "sigma_negative": ({"muscle_sigma_max": sigma}, None, "muscle_sigma_max",
-                           "expected finite peak stresses sigma_max >= 0 MPa, 1 of 2 muscles (first: muscle 1) are "
-                           "not ('orbicularis_oris': -0.1)"),
+                           "expected finite peak stresses 0 <= sigma_max <= 100 MPa, 1 of 2 muscles (first: muscle 1) "
+                           "are not ('orbicularis_oris': -0.1)"),
+        "sigma_huge": ({"muscle_sigma_max": np.array([0.3, 1e30])}, None, "muscle_sigma_max", "<= 100 MPa"),
+        "c10_huge": ({}, _tissues(good, 0, c10=1e30), "meta.tissues[0].c10", "<= 10000 MPa"),
+        "collider_without_faces": ({"collider0_faces": a["collider0_faces"][:0]}, None, "collider0_faces",
+                                   "expected a closed surface of at least 4 triangles, got 0"),
         "sigma_nan": ({"muscle_sigma_max": np.array([np.nan, 0.2])}, None, "muscle_sigma_max", "(first: muscle 0)"),
         "fibre_zero": ({"muscle_entry_fibre": fibre}, None, "muscle_entry_fibre",
                        "expected unit fibre directions, 1 of"),
@@ -162,7 +166,8 @@ CASES = [
     "kappa_negative", "kappa_zero", "kappa_inf", "kappa_text", "sigma_negative", "sigma_nan", "fibre_zero",
     "fibre_nan", "fibre_long", "tets_float", "cranium_float", "simulated_int", "X_text", "tets_wrapped", "no_cranium",
     "no_jaw", "all_inverted", "one_inverted", "none_simulated", "loose_tet", "tets_range", "muscle_tet_range",
-    "jaw_negative", "bary_nan", "condyle_nan", "track_nan", "bone_nan"]
+    "jaw_negative", "bary_nan", "condyle_nan", "track_nan", "bone_nan", "sigma_huge", "c10_huge",
+    "collider_without_faces"]
 
 
 def test_the_good_file_loads(good, box_model):

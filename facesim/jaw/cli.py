@@ -262,6 +262,15 @@ def cmd_jaw_pose(args) -> int:
                                f"the nearest valid parameters are ({', '.join(f'{v:.3g}' for v in inside)})")
         T = rig.transform(q)
     else:
+        bounds = getattr(rig, "bounds", None)
+        if bounds is not None:   # the range of the fitted parameters (a rig fitted without one is unbounded)
+            lo, hi = np.asarray(bounds, dtype=np.float64).T
+            outside = (q < lo) | (q > hi)
+            if outside.any():
+                j = int(np.argmax(outside))
+                names = getattr(rig, "names", None) or [f"q{i + 1}" for i in range(n)]
+                raise FacesimError(f"--sliders: {names[j]} = {q[j]:g} is outside the rig's range [{lo[j]:.3g}, "
+                                   f"{hi[j]:.3g}] (rad or mm, the range of the poses it was fitted to)")
         T = rig.transform(q)
     rest = rig.frame.origin                       # the reference point at rest (skull frame)
     incisor = se3.transform_points(T, rest)[0]

@@ -254,6 +254,10 @@ def read_trc(path) -> MarkerData:
                            f"{len(labels)} labels")
     names = tuple(labels[2:])
     _check_unique(names, f"{path}: line 4")
+    axes = [s.strip() for s in raw[4].split("\t") if s.strip()]
+    if len(axes) != 3 * n_markers or any(not a.upper().startswith(c) for a, c in zip(axes, "XYZ" * n_markers)):
+        raise FacesimError(f"{path}: line 5: expected the coordinate labels 'X1 Y1 Z1 ...' of {n_markers} markers, "
+                           f"got {len(axes)} labels ({' '.join(axes[:3]) or 'an empty line'}...)")
     width = 2 + 3 * n_markers
     rows, lines, blank = [], [], None
     for i, line in enumerate(raw[5:], start=6):

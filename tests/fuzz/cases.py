@@ -362,7 +362,7 @@ MODEL = NpzSpec()
 POSES = NpzSpec(optional=frozenset({"reference_point", "names", "segment_names", "segment_bounds"}),
                 unread=frozenset({"times", "latent"}))
 EXTREMES = NpzSpec(optional=POSES.optional, unread=POSES.unread, extremes=True)
-RIG = NpzSpec()
+RIG = NpzSpec(unbounded=frozenset({"bounds"}))   # a classic rig fitted without a range is unbounded
 
 G, E, V = GARBAGE, EITHER, VALID
 

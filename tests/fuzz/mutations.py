@@ -704,11 +704,13 @@ def save_arrays(arrays: dict, compressed=True, pickle=False) -> bytes:
 class NpzSpec:
     """``optional``: fields a reader may do without (dropping them is EITHER); ``unread``: fields
     the command never reads (any change is EITHER); ``extremes``: the command reads a poses file's
-    ``names`` and ``sliders`` (jaw retarget)."""
+    ``names`` and ``sliders`` (jaw retarget); ``unbounded``: fields where an infinite value is a
+    documented "no limit" (EITHER)."""
 
     optional: frozenset = frozenset()
     unread: frozenset = frozenset()
     extremes: bool = False
+    unbounded: frozenset = frozenset()   # fields where +-inf means "no limit" (a classic rig's bounds)
 
 
 def _array_key(rng, arrays, kinds="fiub"):
@@ -725,8 +727,9 @@ def npz_value(rng, base, spec: NpzSpec):
     idx = tuple(rng.randrange(s) for s in arr.shape) if arr.ndim else ()
     arr[idx] = value
     a[key] = arr
+    limitless = key in spec.unbounded and math.isinf(value)
     return Mutant(f"npz:value:{value:g}", f"field {key!r}{list(idx)} = {value:g}",
-                  EITHER if key in spec.unread else GARBAGE, save_arrays(a))
+                  EITHER if key in spec.unread or limitless else GARBAGE, save_arrays(a))
 
 
 def npz_dtype(rng, base, spec):
