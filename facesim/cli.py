@@ -28,6 +28,9 @@ RESOLUTIONS = ("test", "coarse", "medium", "paper")
 MODEL_ENV = "FACESIM_MODEL"
 EXIT_USAGE = 2
 EXIT_SOLVER = 1   # a numerical failure outside a frame
+EXIT_INTERNAL = 3   # a bug: an exception facesim did not expect
+#: Environment variable that lets an unexpected exception show its traceback.
+DEBUG_ENV = "FACESIM_DEBUG"
 
 
 # ------------------------------------------------------------------ helpers
@@ -808,6 +811,12 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("facesim: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 (a bug, not a user mistake: one line; the traceback on request)
+        if os.environ.get(DEBUG_ENV):
+            raise
+        print(f"facesim: internal error: {type(exc).__name__}: {' '.join(str(exc).split())} (a bug in facesim, not "
+              f"in your input: run again with {DEBUG_ENV}=1 for the traceback and please report it)", file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

@@ -200,3 +200,21 @@ def test_solve_mocap_help_names_the_loss_and_the_parallel_engine(capsys):
     for words in ("--loss {l2,huber,cauchy}", "--workers N", "--scheduler ADDRESS", "--chunk-size FRAMES",
                   "--no-robust", "dask.distributed"):
         assert words in out
+
+
+def test_an_unexpected_exception_is_one_line_and_exit_3(box_model_path, capsys, monkeypatch):
+    """A bug (an exception facesim did not expect) prints one line saying so, exit 3 -- never a
+    traceback, never mistaken for a user error (2); FACESIM_DEBUG=1 lets the traceback through."""
+    import facesim.cli as cli
+
+    def broken(model, path=None):
+        raise RuntimeError("something\nfacesim did not expect")
+
+    monkeypatch.setattr(cli, "model_summary", broken)
+    assert cli.main(["model", "info", str(box_model_path)]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("facesim: internal error: RuntimeError: something facesim")
+    assert "FACESIM_DEBUG=1" in err and "Traceback" not in err
+    monkeypatch.setenv("FACESIM_DEBUG", "1")
+    with pytest.raises(RuntimeError):
+        cli.main(["model", "info", str(box_model_path)])
