@@ -5,8 +5,9 @@ import pytest
 from PIL import Image
 
 from facesim.errors import FacesimError
-from facesim.viz.render import (KNOWN_MUSCLES, LAYERS, PALETTE, bone_motion, muscle_base_name, muscle_colours,
-                                render_contact_sheet, render_image, render_model, tile_images)
+from facesim.viz.render import (ACTIVATION_CMAP, DISPLACEMENT_CMAP, KNOWN_MUSCLES, LAYERS, PALETTE, bone_motion,
+                                muscle_base_name, muscle_colours, render_contact_sheet, render_image, render_model,
+                                tile_images)
 
 SIZE = (240, 200)  # width, height: not square, so a transposed picture would show
 
@@ -31,7 +32,7 @@ def centre(mask):
 
 
 def test_render_model_writes_non_blank_png(box_model, tmp_path):
-    path = render_model(box_model, tmp_path / "pics" / "front.png", size=SIZE)
+    path = render_model(box_model, tmp_path / "pics" / "front.png", size=SIZE, skin_opacity=0.35)
     img = np.asarray(Image.open(path).convert("RGB"))
     assert img.shape == (SIZE[1], SIZE[0], 3)
     assert img.reshape(-1, 3).std(axis=0).max() > 15.0  # not a blank picture
@@ -63,15 +64,15 @@ def test_top_view_has_nose_up_and_left_on_the_left(box_model):
 
 
 def test_hiding_layers_changes_the_picture(box_model):
-    full = render_image(box_model, "three_quarter", size=SIZE, legend=False)
+    full = render_image(box_model, "three_quarter", size=SIZE, legend=False, skin_opacity=0.35)
     no_muscles = render_image(box_model, "three_quarter", show=("skin", "bones", "colliders", "markers"),
-                              size=SIZE, legend=False)
+                              size=SIZE, legend=False, skin_opacity=0.35)
     assert red_mask(full).sum() > 50 and red_mask(no_muscles).sum() == 0
 
 
 def test_legend_adds_pixels(box_model):
-    plain = render_image(box_model, "front", size=SIZE, legend=False)
-    legend = render_image(box_model, "front", size=SIZE, legend=True)
+    plain = render_image(box_model, "front", size=SIZE, legend=False, skin_opacity=0.35)
+    legend = render_image(box_model, "front", size=SIZE, legend=True, skin_opacity=0.35)
     assert np.abs(plain.astype(int) - legend.astype(int)).sum() > 0
 
 
@@ -172,3 +173,73 @@ def test_tiny_pictures_of_a_full_model_render(size, tmp_path):
     w, h = (int(v) for v in size.split("x"))
     image = np.asarray(Image.open(out))
     assert image.shape[:2] == (h, w) and image.std() > 5   # not blank
+
+
+# ---------------------------------------------------------------- opaque skin, colouring by displacement / activation
+def colour_mask(img, hex_colour, tol=0.07):
+    """Pixels of a colour under any shading: chromaticity (r, g, b) / (r + g + b) within ``tol``."""
+    rgb = np.array([int(hex_colour[i:i + 2], 16) for i in (1, 3, 5)], dtype=float)
+    px = img.astype(float)
+    total = px.sum(-1, keepdims=True)
+    near = np.abs(px / np.maximum(total, 1) - rgb / rgb.sum()).max(-1) < tol
+    return near & (total[..., 0] > 0.4 * rgb.sum())
+
+
+def cmap_hex(name, v):
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    return to_hex(colormaps[name](v))
+
+
+def test_default_skin_is_opaque_and_hides_the_muscles(box_model):
+    opaque = render_image(box_model, "front", size=SIZE)
+    seen = render_image(box_model, "front", size=SIZE, skin_opacity=0.35)
+    assert red_mask(opaque).sum() == 0 and red_mask(seen).sum() > 50
+    # no muscle legend under an opaque skin: the legend panel would be drawn on the right
+    assert np.array_equal(opaque, render_image(box_model, "front", size=SIZE, legend=False))
+
+
+def test_color_by_displacement_colours_the_skin_and_draws_a_bar(box_model):
+    x = box_model.X.copy()
+    x[:, 2] += 0.2 * (box_model.X[:, 0] - box_model.X[:, 0].min())   # 0 mm at the right (x min) to 12 mm at the left
+    img = render_image(box_model, "front", x=x, size=(360, 240), color_by="displacement", show=("skin",))
+    low, high = colour_mask(img, cmap_hex(DISPLACEMENT_CMAP, 0.0)), colour_mask(img, cmap_hex(DISPLACEMENT_CMAP, 1.0))
+    # the front view shows the subject's left (large displacement) on the right of the picture
+    assert centre(low)[0] < 0.4 and centre(high)[0] > centre(low)[0] + 0.15
+    plain = render_image(box_model, "front", x=x, size=(360, 240), show=("skin",))
+    assert colour_mask(plain, cmap_hex(DISPLACEMENT_CMAP, 1.0)).sum() == 0
+    # the colour bar in the legend panel: a ramp through the whole map
+    from matplotlib import colormaps
+
+    ramp = 255 * colormaps[DISPLACEMENT_CMAP](np.linspace(0, 1, 256))[:, :3]
+    panel = img[:, -70:].reshape(-1, 1, 3).astype(float)
+    dist = np.linalg.norm(panel - ramp[None], axis=-1)
+    on_map = dist.min(axis=1) < 8
+    values = dist.argmin(axis=1)[on_map] / 255
+    assert on_map.sum() > 300 and values.min() < 0.1 and values.max() > 0.9
+
+
+def test_color_by_activation_colours_each_muscle_by_its_activation(box_model):
+    kw = dict(show=("muscles",), size=SIZE, legend=False, color_by="activation")
+    hot, cold = cmap_hex(ACTIVATION_CMAP, 1.0), cmap_hex(ACTIVATION_CMAP, 0.0)
+    img = render_image(box_model, "front", a=[1.0, 0.0], **kw)   # zygomaticus (subject's left) active
+    assert centre(colour_mask(img, hot))[0] > 0.55 and red_mask(img).sum() == 0
+    swapped = render_image(box_model, "front", a=[0.0, 1.0], **kw)
+    assert centre(colour_mask(swapped, hot))[0] < centre(colour_mask(img, hot))[0] - 0.1
+    assert colour_mask(swapped, cold).sum() > 50
+
+
+def test_color_by_activation_shows_the_muscles_through_the_skin(box_model):
+    img = render_image(box_model, "front", size=SIZE, color_by="activation", a=[1.0, 1.0])
+    assert colour_mask(img[:, :-70], cmap_hex(ACTIVATION_CMAP, 1.0), 0.1).sum() > 50   # skin translucent by default
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(color_by="activation"), "needs the frame's activations"),
+    (dict(color_by="activation", a=[0.5]), "expected 2 finite activations"),
+    (dict(color_by="speed"), "unknown colouring 'speed'"),
+])
+def test_bad_colourings_are_one_line_errors(box_model, kwargs, words):
+    with pytest.raises(FacesimError, match=words):
+        render_image(box_model, size=SIZE, **kwargs)
