@@ -134,6 +134,9 @@ def read_run(folder, model: FaceModel) -> Run:
     if not folder.is_dir():
         raise FacesimError(f"{folder}: no such run folder" if not folder.exists() else f"{folder}: expected a run folder")
     states = {int(m.group(1)): p for p in (folder / "state").glob("frame_*.npz") if (m := _STATE.match(p.name))}
+    if not states:
+        raise FacesimError(f"{folder}: no state files (state/frame_KKKKK.npz); expected a folder written by facesim "
+                           "simulate (or solve-mocap --write-meshes)")
     log = folder / "frames.csv"
     if log.is_file():
         frames = _listed_frames(log)
@@ -144,8 +147,7 @@ def read_run(folder, model: FaceModel) -> Run:
     else:
         frames = np.array(sorted(states), dtype=np.int64)
     if not len(frames):
-        raise FacesimError(f"{folder}: no state files (state/frame_KKKKK.npz); expected a folder written by facesim "
-                           "simulate (or solve-mocap --write-meshes)")
+        raise FacesimError(f"{log}: no frames")
     frames = np.unique(frames)
 
     def load(i: int):
