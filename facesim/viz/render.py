@@ -506,11 +506,11 @@ def tile_images(images, columns: int | None = None, fill=BACKGROUND[0]) -> np.nd
 def render_contact_sheet(model: FaceModel, path, views=("front", "side", "three_quarter", "top"),
                          show=DEFAULT_SHOW, skin_opacity: float | None = None, tile_size=(600, 600), x=None,
                          columns: int | None = None, progress: bool = True, muscle_threshold: float = 0.3, *,
-                         color_by: str = "none", a=None) -> Path:
+                         legend: bool = True, color_by: str = "none", a=None) -> Path:
     """Render several views, each captioned with its name, tiled into one PNG; return its path.
 
     ``views`` : names from :data:`VIEWS`; ``tile_size`` : (width, height) of one view in pixels;
-    ``columns`` : views per row (default: a square-ish grid); the muscle legend is drawn in
+    ``columns`` : views per row (default: a square-ish grid); the muscle legend (``legend``) is drawn in
     the first view only (so is the colour bar). Other parameters as in :func:`render_model`. A tqdm bar on stderr
     reports progress unless ``progress`` is False.
     """
@@ -519,7 +519,7 @@ def render_contact_sheet(model: FaceModel, path, views=("front", "side", "three_
     views = (views,) if isinstance(views, str) else tuple(views)
     for v in views:
         _check(v, show)
-    images = [render_image(model, v, show, skin_opacity, tile_size, x, legend=(k == 0),
+    images = [render_image(model, v, show, skin_opacity, tile_size, x, legend=legend and k == 0,
                            title=v.replace("_", " "), muscle_threshold=muscle_threshold, color_by=color_by, a=a)
               for k, v in enumerate(tqdm(views, desc="rendering views", unit="view", disable=not progress))]
     return save_png(tile_images(images, columns), path)

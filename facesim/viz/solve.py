@@ -11,7 +11,9 @@ frame) and renders each frame as two panels seen by the same fixed camera:
 * right, *simulation*: the simulated face (opaque skin) with its markers (cyan), the captured
   markers (orange, smaller; reported outliers red) and a line from each simulated marker to its
   captured one -- the residual the solve left, with the frame's RMS (outliers left out) in the
-  caption.
+  caption. ``color_by="displacement"`` colours the skin by ``|x - X|`` (mm, colour bar);
+  ``color_by="activation"`` shows the muscles through a translucent skin, each coloured by its
+  solved activation in the frame (0 to 1, colour bar).
 
 The camera is fixed, framed on the model's rest markers.
 
@@ -29,8 +31,9 @@ import numpy as np
 from facesim.controls_io import read_solution
 from facesim.errors import FacesimError
 from facesim.mocap.stabilise import stabilise
-from facesim.viz.render import (BACKGROUND, HEAD_MARKER_COLOUR, MARKER_COLOUR, SKIN_COLOUR, VIEWS, annotate,
-                                legend_layout, polydata, pyvista_offscreen, save_png, set_camera)
+from facesim.viz.render import (ACTIVATION_SKIN_OPACITY, BACKGROUND, COLOR_BY, HEAD_MARKER_COLOUR, MARKER_COLOUR,
+                                SKIN_COLOUR, VIEWS, add_muscles, add_skin, annotate, colour_bar, legend_layout,
+                                polydata, pyvista_offscreen, save_png, set_camera)
 from facesim.viz.video import write_video
 
 CAPTURED_COLOUR = "#ff9a1f"
@@ -41,11 +44,11 @@ GHOST_OPACITY = 0.12
 class _Panel:
     """One off-screen plotter reused for every frame of a sequence (fixed camera on the rest face)."""
 
-    def __init__(self, model, size, view: str, entries):
+    def __init__(self, model, size, view: str, entries, bar=None):
         self.pv = pyvista_offscreen()
         self.size = size
         self.entries = entries
-        width = size[0] - legend_layout(entries, size)[2]
+        width = size[0] - legend_layout(entries, size, bar)[2]   # the panel of the widest bar labels
         self.plotter = self.pv.Plotter(off_screen=True, window_size=(width, size[1]))
         self.plotter.set_background(BACKGROUND[0], top=BACKGROUND[1])
         lo, hi = model.bounding_box()
@@ -79,21 +82,27 @@ class _Panel:
         poly = self.pv.PolyData(np.vstack([a[ok], b[ok]]), lines=cells)
         self.plotter.add_mesh(poly, color=colour, line_width=2, name=name)
 
-    def image(self, title: str) -> np.ndarray:
+    def image(self, title: str, bar=None) -> np.ndarray:
         if self.camera is not None:   # set once, after the first actors exist (VTK clips to what is drawn)
             points, view = self.camera
             set_camera(self.plotter, points, view, fit_drawn=False)
             self.camera = None
         self.plotter.reset_camera_clipping_range()
         shot = self.plotter.screenshot(None, return_img=True)
-        return annotate(np.ascontiguousarray(shot[..., :3]), self.entries, title, self.size)
+        return annotate(np.ascontiguousarray(shot[..., :3]), self.entries, title, self.size, bar)
 
     def close(self) -> None:
         self.plotter.close()
 
 
+def _widest_bar(color_by: str, model):
+    """A colour bar with labels as wide as any frame's (the panel width is fixed for the sequence)."""
+    bar = colour_bar(color_by, model, None, np.ones(model.n_muscles))
+    return None if bar is None else (bar[0], bar[1], max(bar[2], 99.9), bar[3])
+
+
 def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: float = 30.0, size=(1280, 640),
-                 view: str = "front", progress: bool = True, head_smoothing: int = 0) -> Path:
+                 view: str = "front", progress: bool = True, head_smoothing: int = 0, color_by: str = "none") -> Path:
     """Render the solve in ``out_dir`` side by side with its capture and make the video (module doc).
 
     Parameters
@@ -105,7 +114,8 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
         mm, NaN missing, as given to ``track`` (``head="procrustes"`` stabilises it the same way,
         over ``head_smoothing`` frames as the solve did).
     fps : video frame rate, Hz; size : (width, height) of a picture in pixels (two panels);
-    view : camera of both panels, one of :data:`facesim.viz.render.VIEWS`.
+    view : camera of both panels, one of :data:`facesim.viz.render.VIEWS`;
+    color_by : the simulated face's colouring, one of :data:`facesim.viz.render.COLOR_BY` (module doc).
 
     Returns the path of the video.
     """
@@ -113,6 +123,8 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
 
     if view not in VIEWS:
         raise FacesimError(f"view: unknown view {view!r}; expected one of {', '.join(VIEWS)}")
+    if color_by not in COLOR_BY:
+        raise FacesimError(f"color_by: unknown colouring {color_by!r}; expected one of {', '.join(COLOR_BY)}")
     model = sim.model
     out = Path(out_dir)
     P = np.asarray(P, dtype=np.float64)
@@ -135,7 +147,8 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
     left = _Panel(model, panel, view, [("captured", CAPTURED_COLOUR), ("head marker", HEAD_MARKER_COLOUR),
                                        ("reported outlier", OUTLIER_COLOUR)])
     right = _Panel(model, panel, view, [("simulated marker", MARKER_COLOUR), ("captured", CAPTURED_COLOUR),
-                                        ("reported outlier", OUTLIER_COLOUR)])
+                                        ("reported outlier", OUTLIER_COLOUR)],
+                   _widest_bar(color_by, model))
     head_mask = model.markers.head
     pngs = []
     x = None
@@ -154,7 +167,11 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
             left.points("captured", target[~head_mask & ~bad], CAPTURED_COLOUR)
             left.points("head", target[head_mask], HEAD_MARKER_COLOUR)
             left.points("outliers", target[bad], OUTLIER_COLOUR)
-            right.surface("skin", xs, model.skin, SKIN_COLOUR, 1.0)
+            bar = colour_bar(color_by, model, xs, controls[i].a)
+            if color_by == "activation":
+                add_muscles(right.plotter, model, xs, 0.3, controls[i].a, name="muscle")
+            add_skin(right.plotter, model, xs, ACTIVATION_SKIN_OPACITY if color_by == "activation" else 1.0,
+                     bar if color_by == "displacement" else None, name="skin")
             right.points("simulated", mine, MARKER_COLOUR, scale=0.8)
             right.points("captured", target[~bad], CAPTURED_COLOUR, scale=0.55)
             right.points("outliers", target[bad], OUTLIER_COLOUR, scale=0.55)
@@ -163,7 +180,7 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
             rms = float(np.sqrt(np.nanmean(d**2))) if np.isfinite(d).any() else float("nan")
             status = "" if eq.converged else ", not converged"
             image = np.hstack([left.image(f"capture  frame {k}"),
-                               right.image(f"simulation  RMS {rms:.2f} mm{status}")])
+                               right.image(f"simulation  RMS {rms:.2f} mm{status}", bar)])
             pngs.append(save_png(image, out / "render" / f"frame_{k:05d}.png"))
     finally:
         left.close()
