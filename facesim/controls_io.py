@@ -6,7 +6,8 @@ and ``facesim solve-mocap`` writes them.
 * jaw: ``frame,rx,ry,rz,tx,ty,tz`` or ``frame,opening`` for the rigid jaw, ``frame,<parameter>,...``
   for every other jaw model (:func:`read_jaw_csv`);
 * a solve-mocap folder's ``activations.csv`` and ``jaw.csv`` read back as the controls of each
-  frame (:func:`read_solution`).
+  frame (:func:`read_solution`), or, checked against the run's record, as the input of ``simulate
+  --controls-from`` (:func:`read_replay`).
 
 Every error is one line naming the file, the line and the column (:mod:`facesim._csv`): besides
 the checks below, frame numbers that are not integers from 0 to 2**53-1 or do not increase, rows
@@ -18,6 +19,8 @@ UTF-8 text (binary, UTF-16) are refused.
 from __future__ import annotations
 
 import difflib
+import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -146,4 +149,88 @@ def read_solution(out_dir, model) -> tuple[np.ndarray, list[Controls]]:
     return np.array(frames, dtype=np.int64), controls
 
 
-__all__ = ["JAW_FULL", "JAW_OPENING", "check_same_frames", "read_activations_csv", "read_jaw_csv", "read_solution"]
+@dataclass(frozen=True)
+class Replay:
+    """The controls of a ``solve-mocap`` folder as ``simulate`` takes them (:func:`read_replay`):
+    ``frames (F,) int64``, ``A (F, n_muscles)`` in [0, 1], ``jaw`` the jaw model's controls per frame
+    (None for a jaw model without parameters: the jaw at rest), ``jaw_model`` the jaw model the
+    solve used; the solve's contact set-up ``teeth_contact``, ``lip_contact``,
+    ``contact_stiffness`` (N/mm^3; None: not recorded) and ``n_colliders``; ``rebound``: the solve rebound the markers to
+    the capture (``--bind-frames``), so its markers are not the model's own."""
+
+    frames: np.ndarray
+    A: np.ndarray
+    jaw: np.ndarray | None
+    jaw_model: object
+    teeth_contact: bool
+    lip_contact: bool
+    contact_stiffness: float | None
+    n_colliders: int
+    rebound: bool
+
+
+def read_replay(out_dir, model: FaceModel, model_path=None) -> Replay:
+    """The controls a ``solve-mocap`` run wrote into ``out_dir``, for ``simulate --controls-from``:
+    ``activations.csv``, ``jaw.csv`` read with the jaw model recorded in ``report.json``
+    (``jaw_model_used``; a run of an older facesim: ``run.json``'s name of a built-in jaw model), and
+    the run's contact set-up from ``run.json``. One-line errors: a folder that holds no
+    ``solve-mocap`` run, a run made with another model than ``model`` (naming both fingerprints
+    and the parts that differ), a jaw model that cannot be rebuilt or differs from the solve's.
+    ``model_path``: where ``model`` was read (for ``posselt``, the model's own rig beside it)."""
+    from facesim.kinematics.jaw_models import make_jaw_model
+    from facesim.runfolder import RUN_RECORD, differences, fingerprint, parts
+
+    out = Path(out_dir)
+    where = f"--controls-from {out}"
+    record = _json(out / RUN_RECORD, where)
+    if record.get("command") != "solve-mocap":
+        raise FacesimError(f"{where}: {out / RUN_RECORD} records a {record.get('command')} run; expected the folder "
+                           "of a solve-mocap run")
+    inputs = record.get("inputs") or {}
+    mine, theirs = parts(model), inputs.get("model") or {}
+    if mine != theirs:
+        changed = ", ".join(differences(theirs, mine)) or "all"
+        name = model_path if model_path is not None else "the model"
+        raise FacesimError(f"{where}: solved with another model (fingerprint {fingerprint(theirs)}, {out / RUN_RECORD}) "
+                           f"than {name} (fingerprint {fingerprint(mine)}); they differ in {changed}; simulate with "
+                           "the model the run was solved with")
+    report = _json(out / "report.json", where) if (out / "report.json").is_file() else {}
+    used = report.get("jaw_model_used") or {}
+    recorded = inputs.get("jaw_model") or {}
+    spec = used.get("spec") or (recorded.get("name") if recorded.get("name") in ("rigid", "sliding-condyle") else None)
+    if spec is None:
+        raise FacesimError(f"{where}: {out / 'report.json'} does not say how to rebuild the jaw model "
+                           f"{recorded.get('name')!r} of the solve (a run of an older facesim?); simulate with "
+                           "--activations and --jaw and that jaw model's --jaw-model")
+    jaw_model = make_jaw_model(model, spec, model_path=model_path)
+    if recorded.get("content") not in (None, fingerprint(jaw_model)):
+        raise FacesimError(f"{where}: the jaw model {spec!r} is not the one the run was solved with (its rig file "
+                           "changed since?); simulate with the rig of the solve")
+    frames, A = read_activations_csv(out / "activations.csv", model.muscles.names)
+    jaw = None
+    if jaw_model.n_params:
+        jaw_frames, jaw = read_jaw_csv(out / "jaw.csv", model, jaw_model)
+        check_same_frames(out / "jaw.csv", jaw_frames, out / "activations.csv", frames)
+    setup = inputs.get("simulator") or {}
+    colliders = setup.get("colliders") or []
+    return Replay(frames, A, jaw, jaw_model, bool(setup.get("teeth_contact")), bool(setup.get("lip_contact")),
+                  float(setup.get("contact_stiffness") or 0.0) or None, len(colliders),
+                  inputs.get("neutral") is not None)
+
+
+def _json(path: Path, where: str) -> dict:
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FacesimError(f"{where}: no {path.name} in the folder; expected the output folder of a solve-mocap "
+                           "run") from None
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        raise FacesimError(f"{where}: {path} is not readable ({type(exc).__name__}); expected the record of a "
+                           "solve-mocap run") from None
+    if not isinstance(value, dict):
+        raise FacesimError(f"{where}: {path} is not a run record (a JSON object)")
+    return value
+
+
+__all__ = ["JAW_FULL", "JAW_OPENING", "Replay", "check_same_frames", "read_activations_csv", "read_jaw_csv",
+           "read_replay", "read_solution"]

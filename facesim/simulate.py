@@ -109,17 +109,83 @@ class _Out:
         """Remove what a run writes (and nothing else) from the folder."""
         for name in _OUTPUT_FILES:
             (self.root / name).unlink(missing_ok=True)
-        for sub in ("skin", "state", "png"):
-            folder = self.root / sub
-            if folder.is_dir():
-                for p in folder.iterdir():
-                    if _FRAME_FILE.match(p.name):
-                        p.unlink()
+        clear_frame_files(self.root)
 
 
 def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str) -> None:
     atomic_write(path, lambda tmp: np.savez(tmp, x=np.asarray(x, dtype=np.float64), a=a, jaw=jaw, frame=k,
                                             converged=converged, error=error))
+
+
+def write_frame(out_dir, model: FaceModel, k: int, x, a, jaw, converged: bool, error: str = "") -> None:
+    """The files of frame ``k`` as ``simulate`` writes them into ``out_dir`` (also ``solve-mocap
+    --write-meshes``): ``state/frame_KKKKK.npz`` (``x (n, 3)`` mm at full precision, ``a
+    (n_muscles,)``, ``jaw`` the jaw model's controls, ``frame``, ``converged``, ``error``), then
+    ``skin/frame_KKKKK.ply`` (the skin at ``x``; rest positions where ``x`` is not finite, so a
+    diverged frame still has its files). Each file is written atomically."""
+    out = _Out(out_dir)
+    _save_state(out.state(k), k, x, a, jaw, converged, error)
+    _draw(out, model, k, x, SimulateOptions(), png=False)
+
+
+def frame_state(out_dir, k: int, model: FaceModel) -> tuple[np.ndarray, bool] | None:
+    """``(x (n, 3), converged)`` of frame ``k`` in ``out_dir/state``, None without a readable state
+    file of the model's shape."""
+    import zipfile
+
+    try:
+        with np.load(_Out(out_dir).state(k), allow_pickle=False) as z:
+            x, converged = np.array(z["x"], dtype=np.float64), bool(z["converged"])
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
+        return None
+    return (x, converged) if x.shape == model.X.shape else None
+
+
+def redraw_skin(out_dir, model: FaceModel, k: int) -> bool:
+    """Write frame ``k``'s missing skin PLY from its state file; False when it has neither."""
+    out = _Out(out_dir)
+    if out.skin(k).is_file():
+        return True
+    state = frame_state(out_dir, k, model)
+    if state is None:
+        return False
+    _draw(out, model, k, state[0], SimulateOptions(), png=False)
+    return True
+
+
+def write_marker_files(out_dir, model: FaceModel, frames, fps: float) -> int:
+    """``markers.csv`` and ``markers.trc`` (at ``fps`` Hz) of ``out_dir`` from the state files of
+    ``frames``: the model's markers at each frame's ``x`` (mm), NaN for a frame that did not
+    converge; frames without a state file are left out. Returns the number of frames written."""
+    from facesim.mocap.io import write_markers_csv, write_trc
+
+    out = _Out(out_dir)
+    rows, P = [], []
+    for k in map(int, frames):
+        state = frame_state(out_dir, k, model)
+        if state is None:
+            continue
+        x, converged = state
+        rows.append(k)
+        P.append(model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan))
+    if rows:
+        write_markers_csv(out.markers_csv, rows, model.markers.names, np.array(P))
+        write_trc(out.trc, rows, model.markers.names, np.array(P), fps)
+    return len(rows)
+
+
+def clear_frame_files(out_dir) -> None:
+    """Remove the per-frame files (``skin/``, ``state/``, ``png/`` ``frame_KKKKK.*``) and the marker
+    files of a run from ``out_dir``, and nothing else."""
+    out = _Out(out_dir)
+    for path in (out.markers_csv, out.trc):
+        path.unlink(missing_ok=True)
+    for sub in ("skin", "state", "png"):
+        folder = out.root / sub
+        if folder.is_dir():
+            for path in folder.iterdir():
+                if _FRAME_FILE.match(path.name):
+                    path.unlink()
 
 
 def _frame_row(k: int, f, seconds: float) -> dict:
@@ -354,8 +420,9 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
                 f = simulation().step(A[i], jaw=J[i] if posed_jaw else None, frame=k, x0=x_warm)
                 x, converged = f.x, f.converged
                 seconds = f.seconds if f.report is not None else time.perf_counter() - t0
-                _save_state(out.state(k), k, x, A[i], J[i], converged, f.error)
-                _draw(out, model, k, x, options, "" if converged else " (not converged)", colliders=f.colliders)
+                write_frame(out.root, model, k, x, A[i], J[i], converged, f.error)
+                _draw(out, model, k, x, options, "" if converged else " (not converged)", skin=False,
+                      colliders=f.colliders)
                 P = model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan)
                 marker_log.add(marker_csv_line(k, P))
                 row = _frame_row(k, f, seconds)
@@ -419,4 +486,5 @@ def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
     }
 
 
-__all__ = ["FRAME_LOG_COLUMNS", "SimulateOptions", "simulate"]
+__all__ = ["FRAME_LOG_COLUMNS", "SimulateOptions", "clear_frame_files", "frame_state", "redraw_skin", "simulate",
+           "write_frame", "write_marker_files"]

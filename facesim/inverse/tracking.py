@@ -83,7 +83,7 @@ from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, default_
 from facesim.inverse.parallel import SimulatorSpec, solve_on_cluster
 from facesim.mocap.binding import bind_neutral
 from facesim.mocap.stabilise import check_window, stabilise
-from facesim.runfolder import RunFolder, describe, fingerprint, finish, parts
+from facesim.runfolder import UNRECORDED, RunFolder, describe, fingerprint, finish, parts
 
 LOSSES = ("l2", "huber", "cauchy")
 LOG_COLUMNS = ("frame", "converged", "stop_reason", "gn_steps", "equilibria", "newton_iterations", "linear_solves",
@@ -103,7 +103,8 @@ class TrackOptions:
     (None: 3x ``fit.noise``); irls_steps : most reweighted passes of a robust loss; chunk_size :
     frames per independently (cold-) started chunk (None: one chunk, or with a cluster the frames
     divided evenly among its workers); head_smoothing : with ``"procrustes"``, smooth the head
-    transforms over this many frames (odd, >= 3; 0: off; see :func:`facesim.mocap.stabilise.stabilise`)."""
+    transforms over this many frames (odd, >= 3; 0: off; see :func:`facesim.mocap.stabilise.stabilise`);
+    write_meshes : also write each frame's skin and state as ``simulate`` does (the module doc)."""
 
     fit: FitOptions = FitOptions()
     head: str = "procrustes"
@@ -115,6 +116,7 @@ class TrackOptions:
     irls_steps: int = 5
     chunk_size: int | None = None
     head_smoothing: int = 0
+    write_meshes: bool = False
 
     def __post_init__(self):
         if self.head not in ("procrustes", "none"):
@@ -219,7 +221,10 @@ def _tangent(sim, options: TrackOptions, at) -> object:
 
 @dataclass(frozen=True)
 class _Solved:
-    """One solved frame as the client needs it: its line in each of :data:`LOGS` and the summary."""
+    """One solved frame as the client needs it: its line in each of :data:`LOGS` and the summary;
+    ``clipped``: how much its written controls were clipped to the bounds, ``(values, largest)`` of
+    the activations then of the jaw parameters; ``files``: with ``write_meshes``, what its state
+    file holds, ``(x (n, 3), a, jaw, converged, error)``."""
 
     index: int
     lines: tuple[str, ...]
@@ -227,6 +232,8 @@ class _Solved:
     rms: float
     outliers: tuple[str, ...]
     stop_reason: str = "converged"
+    clipped: tuple = (0, 0.0, 0, 0.0)
+    files: tuple | None = None
 
     @property
     def converged(self) -> bool:
@@ -271,26 +278,82 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     total = {name: sum(getattr(f.report, name) for f in fits)
              for name in ("gn_steps", "equilibria", "newton_iterations", "linear_solves", "seconds")}
     used = int(np.isfinite(target).all(axis=1).sum()) - (len(outliers) if options.robust else 0)
-    jaw = np.atleast_1d(fit.controls.jaw) if space.n_jaw else []
     measures = sim.contact_measures(fit.x, fit.controls, k)
+    a, jaw, clipped = _written(fit.controls, space, sim.jaw_model)
     lines = (
-        csv_line([k, *map(_fmt, fit.controls.a)]),
-        csv_line([k, *map(_fmt, jaw)]),
+        *_control_lines(k, a, jaw, sim.jaw_model),
         csv_line([k, _fmt(rep.marker_rms), *map(_fmt, r)]),
         csv_line([k, int(rep.converged), rep.stop_reason, total["gn_steps"], total["equilibria"],
                total["newton_iterations"], total["linear_solves"], _fmt(rep.marker_rms), _fmt(rep.worst_violation),
                used, len(outliers), len(fits), *(_fmt(measures[c]) for c in _MEASURES), f"{total['seconds']:.3f}",
                rep.error]),
     )
+    failed = rep.stop_reason == "equilibrium_failed" or not fit.equilibrium
+    files = None
+    if options.write_meshes:
+        q = jaw if space.n_jaw else np.asarray(sim.jaw_model.rest)
+        x = fit.x if failed else _at_written(fit, space, a, jaw)
+        files = (np.asarray(x, dtype=np.float64), a, q, not failed, rep.error)
     solved = _Solved(i, lines, total["gn_steps"], rep.marker_rms, tuple(model.markers.names[j] for j in outliers),
-                     rep.stop_reason)
-    if rep.stop_reason == "equilibrium_failed" or not fit.equilibrium:
+                     rep.stop_reason, clipped, files)
+    if failed:
         return solved, start
     J = fit.jacobian
     return solved, _Start(fit.controls, fit.x, J, J.tangent_at if J is not None and J.tangent is not None else None)
 
 
 _MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
+
+
+def _written(controls: Controls, space: ControlSpace, jaw_model) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """The controls as the files hold them: activations ``(n_muscles,)`` clipped to [0, 1] and jaw
+    parameters ``(n_jaw,)`` to ``jaw_model.bounds`` -- the penalty schedule enforces the bounds only
+    to ~1e-5, and ``simulate`` refuses any value outside them. Only what is written is clipped: the
+    warm start keeps the solver's own state (controls, equilibrium and Jacobian agree with each
+    other), so the solve is the same as without clipping. Also returns ``(values clipped, largest
+    clip)`` of the activations, then of the jaw."""
+    a = np.asarray(controls.a, dtype=np.float64)
+    q = np.atleast_1d(np.asarray(controls.jaw, dtype=np.float64)) if space.n_jaw else np.zeros(0)
+    lo, hi = _jaw_bounds(jaw_model, len(q))
+    a_out, q_out = np.clip(a, 0.0, 1.0) + 0.0, np.clip(q, lo, hi) + 0.0   # + 0.0: no '-0' in the files
+
+    def amount(v, w):
+        d = np.abs(v - w)
+        return int(np.count_nonzero(d)), float(d.max(initial=0.0))
+
+    return a_out, q_out, (*amount(a, a_out), *amount(q, q_out))
+
+
+def _at_written(fit: Fit, space: ControlSpace, a, jaw) -> np.ndarray:
+    """The equilibrium ``(n, 3)`` of the written (clipped) controls ``a``, ``jaw``, to first order
+    from the fit's: ``x + dx/dc (c_written - c)`` with the fit's Jacobian -- the clip is ~1e-5, so the
+    error is of order 1e-10 and no equilibrium is solved again; what ``simulate`` makes of the
+    written controls is then these positions, not those of the unclipped ones."""
+    dc = space.vector(Controls(a, jaw=jaw if space.n_jaw else None)) - space.vector(fit.controls)
+    if fit.jacobian is None or not dc.any():
+        return fit.x
+    return fit.x + (fit.jacobian.dx @ dc).reshape(-1, 3)
+
+
+def _jaw_bounds(jaw_model, n: int) -> tuple[np.ndarray, np.ndarray]:
+    if not n:
+        return np.zeros(0), np.zeros(0)
+    lo, hi = np.asarray(jaw_model.bounds, dtype=np.float64).reshape(n, 2).T
+    return lo, hi
+
+
+def _control_lines(k: int, a, jaw, jaw_model) -> tuple[str, str]:
+    """Frame ``k``'s lines of ``activations.csv`` and ``jaw.csv`` for controls within the bounds:
+    6 significant digits, or all 17 where rounding to 6 would step outside a bound (a jaw
+    parameter on an upper bound such as 0.6234567 rad), so every value read back is within them."""
+    lo, hi = _jaw_bounds(jaw_model, len(jaw))
+    return (csv_line([k, *(_fmt_within(v, 0.0, 1.0) for v in a)]),
+            csv_line([k, *(_fmt_within(v, l, h) for v, l, h in zip(jaw, lo, hi))]))
+
+
+def _fmt_within(v: float, lo: float, hi: float) -> str:
+    text = _fmt(v)
+    return text if not np.isfinite(v) or lo <= float(text) <= hi else repr(float(v))
 
 
 def _outliers(P, target, options: TrackOptions) -> list[int]:
@@ -416,7 +479,7 @@ def _solve_here(sim, space, options, frames, P, runs, starts):
 
 def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None = None, start: Controls | None = None,
           resume: bool = False, overwrite: bool = False, progress: bool = True, client=None, neutral=None,
-          info: dict | None = None) -> dict:
+          info: dict | None = None, fps: float = 30.0) -> dict:
     """Fit every frame of ``P (F, r, 3)`` (mm, the model's marker order, NaN missing; frame numbers
     ``frames (F,)``, unique) and write the results into ``out_dir`` (see the module doc).
 
@@ -435,7 +498,8 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     marker order, NaN missing, same coordinates as ``P``; several: the per-marker median after
     stabilisation); the model's markers are first rebound to where it puts
     them (:func:`facesim.mocap.binding.rebind_markers`, Sifakis 2005's binding of the capture to
-    the skin). Returns the summary (also written to ``report.json``)."""
+    the skin). ``fps``: the frame rate (Hz) of ``markers.trc`` with ``options.write_meshes``.
+    Returns the summary (also written to ``report.json``)."""
     options = options or TrackOptions()
     folder = RunFolder(out_dir, "solve-mocap", resume, overwrite)
     spec = sim if isinstance(sim, SimulatorSpec) else None
@@ -462,11 +526,13 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     with folder:   # one run at a time in the folder, until report.json is written
         chunk = options.chunk_size or (_recorded_chunk(folder.previous) if resume else None) or \
             math.ceil(len(frames) / max(n_workers, 1)) or 1
-        record["options"] = describe(dataclasses.replace(options, chunk_size=chunk))
+        # write_meshes is recorded only when on: a run of an older facesim (without it) still resumes
+        skip = () if options.write_meshes else ("write_meshes",)
+        record["options"] = describe(dataclasses.replace(options, chunk_size=chunk), UNRECORDED + skip)
         folder.start(record, functools.partial(_holds_a_run, folder.root), functools.partial(_clear, folder.root),
                      info=info)
         return _track(local, spec, client, options, frames, P, folder.root, chunk, start, rebinding, resume, progress,
-                      info, n_workers)
+                      info, n_workers, fps)
 
 
 def _inputs(sim, P, frames, neutral, start) -> dict:
@@ -496,10 +562,13 @@ def _clear(out: Path) -> None:
     shutil.rmtree(out / CHUNKS, ignore_errors=True)
     for path in (out / STATE).glob("warm_*.npz"):
         path.unlink()
+    from facesim.simulate import clear_frame_files
+
+    clear_frame_files(out)   # what --write-meshes wrote
 
 
 def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start, rebinding, resume, progress, info,
-           n_workers) -> dict:
+           n_workers, fps) -> dict:
     """The frames of :func:`track` in a claimed folder."""
     from tqdm import tqdm
 
@@ -509,14 +578,21 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
     headers = {"activations": ["frame", *model.muscles.names], "jaw": ["frame", *jaw_names],
                "residuals": ["frame", "rms", *model.markers.names], "frames": list(LOG_COLUMNS)}
     n = len(frames)
-    previous = {}
+    previous, clipped_before = {}, {}
     if resume and (out / "report.json").is_file():
         try:
-            previous = json.loads((out / "report.json").read_text()).get("outliers", {})
+            old = json.loads((out / "report.json").read_text())
+            previous = old.get("outliers", {})
+            clipped_before = (old.get("clipped") or {}).get("per_frame", {})
         except (ValueError, AttributeError):
-            previous = {}
+            previous, clipped_before = {}, {}
     outputs = _Outputs(out, headers, frames, resume)
     done = [int(k) in outputs.done for k in frames]
+    if options.write_meshes:
+        from facesim.simulate import redraw_skin, write_frame, write_marker_files
+
+        for k in outputs.done:   # a skin lost since: drawn again from its state
+            redraw_skin(out, model, k)
     runs = _runs(n, chunk, done)
     cold = _Start(start or Controls(np.zeros(model.n_muscles), jaw=_rest_jaw(space)))
     starts, restored = [], 0
@@ -525,7 +601,7 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
             starts.append(cold)
             continue
         k = int(frames[first - 1])
-        saved = _load_warm(_warm_path(out, k), k, outputs.done[k], space, model)
+        saved = _load_warm(_warm_path(out, k), k, outputs.done[k], space, model, local.jaw_model)
         if saved is None:   # no warm start on disk (a run of an older facesim): the written controls
             starts.append(_Start(outputs.controls(k, space)))
             continue
@@ -547,7 +623,9 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
     summary = {**(info or {}), "frames": n, "reused_frames": int(sum(done)), "chunk_size": chunk,
                "workers": n_workers if client is not None else 0, "loss": options.loss, "rebinding": rebinding,
                "outliers": {k: v for k, v in previous.items() if k.lstrip("-").isdigit() and int(k) in outputs.done},
-               "warm_starts_restored": restored, "status": "running"}
+               "warm_starts_restored": restored, "status": "running",
+               "jaw_model_used": _jaw_record(local, spec)}
+    clipped = {k: v for k, v in clipped_before.items() if k.lstrip("-").isdigit() and int(k) in outputs.done}
     t_start = time.perf_counter()
     solved: dict[int, _Solved] = {}
     if client is not None:
@@ -559,8 +637,12 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
         with tqdm(total=n, initial=int(sum(done)), desc="solve-mocap", unit="frame", disable=not progress) as bar:
             for s, handed_on in results:
                 k, c = int(frames[s.index]), s.index // chunk
+                if s.files is not None:   # before the lines: a written frame has its files
+                    write_frame(out, model, k, *s.files)
                 _save_warm(_warm_path(out, k), k, handed_on)   # before the lines: a written frame has its warm start
                 outputs.add(s.index, s.lines)
+                if s.clipped[0] or s.clipped[2]:
+                    clipped[str(k)] = list(s.clipped)
                 if c in last_warm:
                     _warm_path(out, last_warm[c]).unlink(missing_ok=True)
                 last_warm[c] = k
@@ -595,12 +677,41 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
             **_stop_summary(outputs, frames),
         })
 
+        summary["clipped"] = _clip_summary(clipped, position)
+
+        def markers():
+            if options.write_meshes:
+                write_marker_files(out, model, [k for k in map(int, frames) if k in outputs.done], fps)
+
         def report():
             atomic_write(out / "report.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
 
         # a failed run reports its own error, not a consequence of it in these writes (a full disk)
-        finish((tidy, report), failed)
+        finish((tidy, markers, report), failed)
     return summary
+
+
+def _jaw_record(sim, spec) -> dict:
+    """The jaw model of the written controls, as ``simulate --controls-from`` rebuilds it: its name,
+    the spec it was made from (rig files as absolute paths; None for a jaw model given as an
+    object) and its content fingerprint."""
+    return {"name": sim.jaw_model.name, "spec": spec.jaw_model if spec is not None else
+            (sim.jaw_model.name if sim.jaw_model.name in ("rigid", "sliding-condyle") else None),
+            "content": fingerprint(sim.jaw_model)}
+
+
+def _clip_summary(per_frame: dict, position: dict) -> dict:
+    """``report.json``'s ``clipped``: over the written frames, the values clipped to the bounds
+    and the largest clip, of the activations and of the jaw, and ``per_frame`` (frame: activations
+    clipped, largest, jaw clipped, largest; frames with a clip only)."""
+    rows = list(per_frame.values())
+
+    def total(j):
+        return {"values": int(sum(r[j] for r in rows)), "largest": float(max((r[j + 1] for r in rows), default=0.0)),
+                "frames": int(sum(r[j] > 0 for r in rows))}
+
+    return {"activations": total(0), "jaw": total(2),
+            "per_frame": dict(sorted(per_frame.items(), key=lambda kv: position.get(int(kv[0]), 0)))}
 
 
 # ------------------------------------------------------------------ warm starts on disk
@@ -647,7 +758,7 @@ def _save_warm(path: Path, k: int, start: _Start) -> None:
     atomic_write(path, write)
 
 
-def _load_warm(path: Path, k: int, lines, space: ControlSpace, model) -> _Start | None:
+def _load_warm(path: Path, k: int, lines, space: ControlSpace, model, jaw_model) -> _Start | None:
     """The warm start saved for frame ``k``, or None when the file is missing, unreadable, of
     another frame or shape, or its controls are not those written in the frame's ``lines``."""
     import zipfile
@@ -674,8 +785,8 @@ def _load_warm(path: Path, k: int, lines, space: ControlSpace, model) -> _Start 
                                 or J.dP.shape != (3 * model.n_markers, space.size)))
             or (at is not None and at[1].shape != n3)):
         return None
-    jaw = np.atleast_1d(controls.jaw) if space.n_jaw else []
-    if csv_line([k, *map(_fmt, controls.a)]) != lines[0] or csv_line([k, *map(_fmt, jaw)]) != lines[1]:
+    a, jaw, _ = _written(controls, space, jaw_model)
+    if _control_lines(k, a, jaw, jaw_model) != tuple(lines[:2]):
         return None
     return _Start(controls, x, J, at)
 
