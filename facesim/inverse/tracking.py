@@ -32,10 +32,22 @@ process). The client writes every frame as it arrives.
 Files in ``out_dir`` (append-only logs, :mod:`facesim.framelog`: one complete line per frame,
 synced to disk; ``resume`` keeps the frames already written and solves only the others):
 
-* ``activations.csv`` ``frame,<muscle>,...``; ``jaw.csv`` ``frame,<jaw parameter>,...``;
+* ``activations.csv`` ``frame,<muscle>,...``; ``jaw.csv`` ``frame,<jaw parameter>,...``: the
+  controls clipped to the bounds ([0, 1]; the jaw model's ``bounds``), which the penalty schedule
+  leaves violated by ~1e-5, so ``simulate`` takes them as they are; only the written values are
+  clipped (the warm start keeps the solver's state: the solve is the one an unclipped run makes),
+  ``report.json``'s ``clipped`` says how much and ``frames.csv``'s ``worst_violation`` stays the
+  solver's;
 * ``residuals.csv`` ``frame,rms,<marker>,...`` (mm, NaN for missing markers);
 * ``frames.csv`` the solver log per frame (counts summed over the frame's fits);
-* ``report.json`` the summary (rewritten when the run ends, also when interrupted);
+* ``report.json`` the summary (rewritten when the run ends, also when interrupted), with the jaw
+  model the controls are for (``jaw_model_used``: name, spec, fingerprint) for ``simulate
+  --controls-from``;
+* with ``write_meshes``, what ``simulate`` writes (:func:`facesim.simulate.write_frame`):
+  ``skin/frame_KKKKK.ply`` and ``state/frame_KKKKK.npz`` per frame, written before the frame's log
+  lines, at the fit's equilibrium moved to first order to the clipped controls (no equilibrium is
+  solved again; a failed frame's files hold the state it was left in, ``converged`` 0), and when
+  the run ends ``markers.csv`` / ``markers.trc`` of the model's markers at those states;
 * ``chunks/`` while frames finish out of order: the four logs of the frames solved after a
   still unfinished one. The files above always hold the longest finished prefix of the sequence,
   in frame order; a frame moves there as soon as every frame before it is written, and
