@@ -60,6 +60,16 @@ def export_volume(model: FaceModel, path, x=None) -> Path:
     ``muscle_total_fraction`` (sum over all muscles), ``fibre`` (3 comps, unit rest fibre
     direction of the dominant muscle, zero where there is none). Point data: ``attachment``
     (int8: 0 free, 1 cranium, 2 jaw). ``x (n, 3)`` mm replaces the rest positions if given.
+
+    ``muscle_total_fraction`` is not a volume fraction and may exceed 1: each muscle's fraction
+    is the share of the tet inside that muscle's own ribbon (11 sample points,
+    :func:`facesim.anatomy.muscles.embed_muscles`), and ribbons overlap where muscles interlace
+    -- at the modiolus (zygomaticus major, levator anguli oris, risorius into orbicularis oris),
+    the orbicularis oris halves at the midline, the levators and corrugator into orbicularis
+    oculi. Each muscle then acts on its own fraction (:class:`facesim.fem.terms.MuscleTerm`:
+    fibre stress ``sigma_max rho [f_P + a f_L]`` per muscle, summed), so such a tet carries the
+    fibres of every muscle passing through it. On the shipped coarse face 111 of its 1,277
+    muscle tets sum above 1 (at most 2.91, three muscles).
     """
     path = require_suffix(path, VOLUME_SUFFIXES, "a volume mesh file name")
     points = _positions(model, x)

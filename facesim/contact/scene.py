@@ -8,7 +8,7 @@ Command-line specification (``facesim simulate --collider SPEC``, repeatable)::
 
     KIND:key=value,key=value,...
 
-    sphere:radius=12,centre=55:-30:70            a ball fixed in the world
+    sphere:radius=12,centre=55:-30:70            a ball fixed in the world (centre or path is required)
     sphere:radius=12,path=ball.csv               a ball whose centre follows frame,x,y,z rows
     capsule:radius=4,a=0:-40:90,b=0:-40:130      a rod (segment a-b, radius)
     plane:point=0:-70:0,normal=0:1:0             a half-space (normal points out of it)
@@ -148,8 +148,12 @@ def parse_collider_spec(spec: str, base=None, index: int = 0) -> SceneCollider:
          for k, s in raw.items()}
     if kind == "sphere" and "centre" in v and "path" in v:
         raise FacesimError(f"collider {spec!r}: give either centre or path, not both")
+    if kind == "sphere" and "centre" not in v and "path" not in v:
+        # without a position the ball would sit at the origin, between the condyles inside the head
+        raise FacesimError(f"collider {spec!r}: a sphere needs a position: centre=x:y:z (mm, model frame) or "
+                           "path=FILE.csv (frame,x,y,z)")
     if kind == "sphere":
-        shape = Sphere(v.get("centre", np.zeros(3)) if "path" not in v else np.zeros(3), v["radius"])
+        shape = Sphere(v["centre"] if "path" not in v else np.zeros(3), v["radius"])
     elif kind == "capsule":
         shape = Capsule(v["a"], v["b"], v["radius"])
     elif kind == "plane":
@@ -159,7 +163,11 @@ def parse_collider_spec(spec: str, base=None, index: int = 0) -> SceneCollider:
 
         path = _file(spec, "file", v["file"], base)
         try:
-            mesh = trimesh.load(path, force="mesh")
+            # the file's own connectivity first: merging coincident vertices would pinch a closed surface
+            # whose sheets touch at a point (the model's teeth and cranium, written by model export --surfaces)
+            mesh = trimesh.load(path, force="mesh", process=False)
+            if not mesh.is_watertight:   # a triangle soup (STL): weld its corners
+                mesh.merge_vertices()
         except Exception as exc:   # trimesh raises many types for unreadable files
             raise FacesimError(f"collider {spec!r}: {path}: cannot read a triangle mesh ({exc})") from None
         V = np.asarray(mesh.vertices, dtype=np.float64) * v.get("scale", 1.0)
