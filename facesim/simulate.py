@@ -53,7 +53,7 @@ from facesim.runfolder import RunFolder, describe, fingerprint, finish, parts
 FRAME_LOG_COLUMNS = ("frame", "converged", "stop_reason", "iterations", "relative_residual", "residual_N", "seconds",
                      "linear_iterations", "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm",
                      "inverted_tets", "min_J", "error")
-_OUTPUT_FILES = ("markers.csv", "markers.trc", "frames.csv", "report.json", "video.mp4", "video.gif")
+_OUTPUT_FILES = ("markers.csv", "markers.trc", "markers.c3d", "frames.csv", "report.json", "video.mp4", "video.gif")
 _FRAME_FILE = re.compile(r"frame_\d+\.(ply|npz|png)$")
 
 
@@ -157,6 +157,7 @@ def write_marker_files(out_dir, model: FaceModel, frames, fps: float) -> int:
     """``markers.csv`` and ``markers.trc`` (at ``fps`` Hz) of ``out_dir`` from the state files of
     ``frames``: the model's markers at each frame's ``x`` (mm), NaN for a frame that did not
     converge; frames without a state file are left out. Returns the number of frames written."""
+    from facesim.caches import write_markers_c3d
     from facesim.mocap.io import write_markers_csv, write_trc
 
     out = _Out(out_dir)
@@ -171,6 +172,7 @@ def write_marker_files(out_dir, model: FaceModel, frames, fps: float) -> int:
     if rows:
         write_markers_csv(out.markers_csv, rows, model.markers.names, np.array(P))
         write_trc(out.trc, rows, model.markers.names, np.array(P), fps)
+        write_markers_c3d(out.root / "markers.c3d", rows, model.markers.names, np.array(P), fps)
     return len(rows)
 
 
@@ -178,7 +180,7 @@ def clear_frame_files(out_dir) -> None:
     """Remove the per-frame files (``skin/``, ``state/``, ``png/`` ``frame_KKKKK.*``) and the marker
     files of a run from ``out_dir``, and nothing else."""
     out = _Out(out_dir)
-    for path in (out.markers_csv, out.trc):
+    for path in (out.markers_csv, out.trc, out.root / "markers.c3d"):
         path.unlink(missing_ok=True)
     for sub in ("skin", "state", "png"):
         folder = out.root / sub
@@ -372,6 +374,7 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
     from tqdm import tqdm
 
     from facesim.controls import Controls
+    from facesim.caches import write_markers_c3d
     from facesim.mocap.io import marker_csv_header, marker_csv_line, read_markers_csv, write_trc
 
     mk_header = marker_csv_header(model.markers.names)
@@ -447,6 +450,7 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
             if rows:
                 data = read_markers_csv(out.markers_csv)
                 write_trc(out.trc, data.frames, data.names, data.P, options.fps)
+                write_markers_c3d(out.root / "markers.c3d", data.frames, data.names, data.P, options.fps)
 
         def video():
             if status == "complete" and options.video:
@@ -482,6 +486,7 @@ def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
         "wall_seconds": round(wall, 3),
         "outputs": {"skin": str(out.root / "skin"), "state": str(out.root / "state"),
                     "markers_csv": str(out.markers_csv), "markers_trc": str(out.trc),
+                    "markers_c3d": str(out.root / "markers.c3d"),
                     "frames_csv": str(out.frames_csv)},
     }
 

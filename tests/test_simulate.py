@@ -155,6 +155,12 @@ def test_run_writes_every_output(run, box_model):
     assert trc.names == csv.names and trc.rate == 30.0
     np.testing.assert_array_equal(trc.frames, [0, 1, 2])
     np.testing.assert_allclose(trc.P, csv.P, atol=1e-6)
+    from facesim.mocap.io import read_c3d
+
+    c3d = read_c3d(run / "markers.c3d")   # the simulated markers for a mocap tool (float32 in the file)
+    assert c3d.names == csv.names and c3d.rate == 30.0
+    np.testing.assert_array_equal(c3d.frames, [0, 1, 2])
+    np.testing.assert_allclose(c3d.P, csv.P, atol=1e-4)
     report = json.loads((run / "report.json").read_text())
     assert report["status"] == "complete" and report["frames"] == 3 and report["converged"] == 3
     assert report["unconverged_frames"] == [] and report["options"]["solver"] == "direct"
