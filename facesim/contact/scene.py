@@ -148,12 +148,8 @@ def parse_collider_spec(spec: str, base=None, index: int = 0) -> SceneCollider:
          for k, s in raw.items()}
     if kind == "sphere" and "centre" in v and "path" in v:
         raise FacesimError(f"collider {spec!r}: give either centre or path, not both")
-    if kind == "sphere" and "centre" not in v and "path" not in v:
-        # without a position the ball would sit at the origin, between the condyles inside the head
-        raise FacesimError(f"collider {spec!r}: a sphere needs a position: centre=x:y:z (mm, model frame) or "
-                           "path=FILE.csv (frame,x,y,z)")
     if kind == "sphere":
-        shape = Sphere(v["centre"] if "path" not in v else np.zeros(3), v["radius"])
+        shape = Sphere(v.get("centre", np.zeros(3)) if "path" not in v else np.zeros(3), v["radius"])
     elif kind == "capsule":
         shape = Capsule(v["a"], v["b"], v["radius"])
     elif kind == "plane":
@@ -177,7 +173,12 @@ def parse_collider_spec(spec: str, base=None, index: int = 0) -> SceneCollider:
     collider = Collider(shape, name=name)
     if "path" in v:
         collider = KinematicPath.from_csv(_file(spec, "path", v["path"], base), collider)
-    return SceneCollider(collider, v.get("bone", "world"), name)
+    scene = SceneCollider(collider, v.get("bone", "world"), name)   # checks the bone first
+    if kind == "sphere" and "centre" not in v and "path" not in v:
+        # without a position the ball would sit at the origin, between the condyles inside the head
+        raise FacesimError(f"collider {spec!r}: a sphere needs a position: centre=x:y:z (mm, model frame) or "
+                           "path=FILE.csv (frame,x,y,z)")
+    return scene
 
 
 __all__ = ["SceneCollider", "as_scene_collider", "parse_collider_spec", "BONES"]

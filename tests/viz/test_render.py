@@ -243,3 +243,31 @@ def test_color_by_activation_shows_the_muscles_through_the_skin(box_model):
 def test_bad_colourings_are_one_line_errors(box_model, kwargs, words):
     with pytest.raises(FacesimError, match=words):
         render_image(box_model, size=SIZE, **kwargs)
+
+
+def test_solve_render_colours_the_simulated_face(box_model, box_model_path, tmp_path):
+    """solve-mocap --render --color-by activation: the right panel shows the muscles in the colours of their
+    solved activations, with the colour bar."""
+    from facesim.cli import main
+    from facesim.controls import Controls
+    from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+    from facesim.fem.newton import NewtonOptions
+    from facesim.kinematics.condyle import SlidingCondyleJaw
+    from facesim.mocap.io import write_trc
+
+    sim = FaceSimulator(box_model, EquilibriumOptions(newton=NewtonOptions(linear_solver="direct")),
+                        jaw_model=SlidingCondyleJaw(box_model.jaw))
+    P = np.array([box_model.marker_positions(sim.equilibrium(Controls([0.6 * k, 0.0], jaw=[0.0, 0, 0])).x)
+                  for k in range(2)])
+    write_trc(tmp_path / "m.trc", np.arange(2), box_model.markers.names, P, fps=10.0)
+    out = tmp_path / "out"
+    assert main(["solve-mocap", "--model", str(box_model_path), "--markers", str(tmp_path / "m.trc"), "-o", str(out),
+                 "--head", "none", "--noise", "0.01", "--solver", "direct", "--no-contact", "--render", "-q",
+                 "--color-by", "activation"]) == 0
+    right = np.asarray(Image.open(out / "render" / "frame_00001.png").convert("RGB"))[:, 640:]
+    from matplotlib import colormaps
+
+    ramp = 255 * colormaps[ACTIVATION_CMAP](np.linspace(0, 1, 256))[:, :3]
+    bar = right[:, -110:].reshape(-1, 1, 3).astype(float)
+    dist = np.linalg.norm(bar - ramp[None], axis=-1)
+    assert (dist.min(axis=1) < 8).sum() > 300   # the colour bar of the activations
