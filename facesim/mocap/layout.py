@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,6 +50,9 @@ MIN_FRONT = -0.5
 #: Candidates whose trimmed RMS is within this of the best (mm, or 5 %) are ties (a symmetric
 #: shape); the one nearest the capture's own orientation (smallest rotation) is kept.
 TIE_MM = 0.05
+#: Distances are capped here in the tie-break score of all the markers (mm), so a headband counts
+#: no more than a marker that is a little off.
+CAP_MM = 10.0
 
 
 @dataclass(frozen=True)
@@ -171,9 +175,10 @@ def _rotation_starts(Us, Uq, tilt_deg: float = 20.0) -> np.ndarray:
     y, z: a face's marker cloud spreads most across and along the face and least in depth) in the
     24 proper axis-aligned ways, each also tilted by +-``tilt_deg`` about each axis (a cloud's axes
     are often ~20 degrees off the face's: ICP from a right translation converges from 20+ degrees),
-    and onto the skin's own principal axes ``Us`` (for shapes that are not faces)."""
+    and onto the skin's own principal axes ``Us`` (for shapes that are not faces); and first the
+    identity (a capture already oriented as the model)."""
     tilts = [np.eye(3)] + [_rotvec(sign * np.radians(tilt_deg) * np.eye(3)[a]) for a in range(3) for sign in (1, -1)]
-    out = []
+    out = [np.eye(3)]   # the capture's own orientation first: it wins the ties of a symmetric shape
     for S in _axis_rotations():
         for frame, dR in [(np.eye(3), d) for d in tilts] + [(Us, np.eye(3))]:
             R0 = frame @ S @ Uq.T
@@ -239,6 +244,18 @@ def _reorder(fit):
     return rms, R, t, s
 
 
+def _capped(P, R, t, s, skin: _Skin) -> float:
+    """RMS of the (approximate) skin distances of all of ``P`` capped at :data:`CAP_MM`, mm: breaks
+    the ties of the trimmed RMS (a symmetric shape, or a part of the cloud that fits elsewhere).
+    Markers on skin facing backward (the back of the head, where :func:`bind_layout` refuses them)
+    count as capped."""
+    Y = s * P @ R.T + t
+    q, n = skin.near(Y)
+    d = np.minimum(np.linalg.norm(Y - q, axis=1), CAP_MM)
+    d[n[:, 2] < MIN_FRONT] = CAP_MM   # a facial marker on skin facing backward: as bad as a far one
+    return float(np.sqrt(np.mean(d ** 2)))
+
+
 def _trimmed_distance(P, R, t, s, skin: _Skin, keep: float):
     Y = s * P @ R.T + t
     _, d, _ = skin.closest(Y)
@@ -297,7 +314,7 @@ def register_capture(model: FaceModel, neutral, head=None, similarity: bool = Fa
             scored.append((rms, R, t, s))
     scored.sort(key=lambda c: c[0])   # a few steps sort the starts; the promising ones go on
     scored = sorted((_reorder(_icp(Q, R, t, s, skin.near, keep, steps=40)) for _, R, t, s in scored[:48]),
-                    key=lambda c: c[0])
+                    key=lambda c: c[0] + 0.1 * _capped(Q, c[1], c[2], c[3], skin))
     if similarity:   # the scale of the best pose: shrinking a cloud onto the skin always lowers the
         # plane distances, so the scale is not an ICP unknown but searched in [0.8, 1.25] (units are
         # converted before), each scale refitted rigidly
@@ -321,13 +338,17 @@ def register_capture(model: FaceModel, neutral, head=None, similarity: bool = Fa
         return q, skin.normals[tri]
 
     finals = []
-    for rms0, R, t, s in _distinct(scored, 4):
+    for rms0, R, t, s in _distinct(scored, 8):
         R, t, s, _ = _icp(Q, R, t, s, exact, keep, steps=8, tol=1e-6)
-        rms, _, _ = _trimmed_distance(Q, R, t, s, skin, keep)
-        finals.append((rms, R, t, s))
+        rms, d, _ = _trimmed_distance(Q, R, t, s, skin, keep)
+        finals.append((rms, R, t, s, _capped(Q, R, t, s, skin)))
     best = min(r[0] for r in finals)
     ties = [f for f in finals if f[0] <= best + max(TIE_MM, 0.05 * best)]
-    rms, R, t, s = min(ties, key=lambda f: np.trace(f[1]) * -1)   # smallest rotation angle
+    # among ties (a symmetric shape, or trimming that lets a part of the cloud fit elsewhere): the
+    # pose where all the markers, trimmed ones included, sit closest (capped), then the smallest turn
+    low = min(f[4] for f in ties)
+    ties = [f for f in ties if f[4] <= low + max(TIE_MM, 0.05 * low)]
+    rms, R, t, s, _ = max(ties, key=lambda f: np.trace(f[1]))   # largest trace: smallest rotation angle
     _, d, kept_q = _trimmed_distance(Q, R, t, s, skin, keep)
     distance = np.full(len(P), np.nan)
     seen = np.isfinite(P).all(axis=1)
@@ -486,5 +507,119 @@ def read_marker_map(path) -> dict[str, str]:
     return out
 
 
-__all__ = ["KEEP", "MAX_DEPTH", "MAX_HEAD_DISTANCE", "MAX_SKIN_DISTANCE", "PLACED_HEADER", "Registration",
+# ------------------------------------------------------------------ the whole path
+#: Neutral frames when none are named: the capture's first frames.
+DEFAULT_BIND_FRAMES = 10
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A capture's own markers on the model: ``markers`` (MarkerSet, the usable markers in capture
+    order), ``index (r,)`` their columns in the capture, ``registration``, ``rows`` (placement,
+    :data:`PLACED_HEADER`), ``rejected {name: reason}``, ``head`` (head marker names) and how they
+    were chosen (``head_source``: ``given``, ``map`` or ``proposed``), ``mapped {capture: model}``."""
+
+    markers: MarkerSet
+    index: np.ndarray
+    registration: Registration
+    rows: list
+    rejected: dict
+    head: tuple
+    head_source: str
+    mapped: dict
+
+    def to_model(self, P) -> np.ndarray:
+        """The capture ``P (F, N, 3)`` (all its markers, own frame, mm) as the model's ``(F, r, 3)``."""
+        return self.registration.apply(np.asarray(P, dtype=np.float64)[:, self.index])
+
+
+def fit_layout(model: FaceModel, names, P, neutral_frames, head_names=None, marker_map=None,
+               similarity: bool = False, noise: float = 0.5) -> Layout:
+    """Register and bind a capture of its own layout (see the module doc).
+
+    names : (N,) the capture's marker names; P : (F, N, 3) float64 the capture, mm, its own frame
+    (NaN missing); neutral_frames : (F,) bool, the frames of the neutral face; head_names : the
+    head markers (None: from the map's model head markers, else :func:`propose_head_markers`);
+    marker_map : ``{capture name: model name}``: those markers take the model's own binding, and
+    with >= 3 of them seen the registration is their rigid fit onto the model's rest markers.
+    """
+    from facesim.se3 import rigid_fit
+
+    names = [str(n) for n in names]
+    P = np.asarray(P, dtype=np.float64)
+    marker_map = dict(marker_map or {})
+    model_index = {n: i for i, n in enumerate(model.markers.names)}
+    for cap, mod in marker_map.items():
+        if cap not in names:
+            raise FacesimError(f"marker map: capture marker {cap!r} is not in the capture")
+        if mod not in model_index:
+            raise FacesimError(f"marker map: {mod!r} is not one of the model's markers ('facesim model info' lists them)")
+    if head_names is not None:
+        unknown = [h for h in head_names if h not in names]
+        if unknown:
+            raise FacesimError(f"--head-markers: {', '.join(unknown)} not in the capture "
+                               f"(it has {', '.join(names[:6])}{', ...' if len(names) > 6 else ''})")
+        if len(set(head_names)) < 3:
+            raise FacesimError(f"--head-markers: expected >= 3 head markers, got {len(set(head_names))}")
+        head, source = tuple(head_names), "given"
+    else:
+        from_map = tuple(c for c, m in marker_map.items() if model.markers.head[model_index[m]])
+        if len(from_map) >= 3:
+            head, source = from_map, "map"
+        else:
+            head, source = tuple(propose_head_markers(P, names, noise=noise)), "proposed"
+            if len(head) < 3:
+                raise FacesimError("head markers: no group of >= 3 markers moves rigidly over the capture; "
+                                   "name them with --head-markers NAME,NAME,...")
+    hidx = [names.index(h) for h in head]
+    N = P[np.asarray(neutral_frames, bool)]
+    if not len(N):
+        raise FacesimError("neutral frames: none selected")
+    ref = N[0][hidx]
+    aligned = []
+    for frame in N:   # the head may move during the neutral frames: each onto the first by its head markers
+        ok = np.isfinite(frame[hidx]).all(axis=1) & np.isfinite(ref).all(axis=1)
+        if ok.sum() >= 3:
+            T = rigid_fit(frame[hidx][ok], ref[ok])
+            frame = frame @ T[:3, :3].T + T[:3, 3]
+        aligned.append(frame)
+    with warnings.catch_warnings():   # a marker missing in every neutral frame stays NaN (refused)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        neutral = np.nanmedian(np.array(aligned), axis=0)
+    mapped_idx = [names.index(c) for c in marker_map]
+    rest = model.marker_positions()
+    seen_map = [i for i in mapped_idx if np.isfinite(neutral[i]).all()]
+    if len(seen_map) >= 3:   # correspondences: their rigid fit, the residual measured on the skin
+        T = rigid_fit(neutral[seen_map], rest[[model_index[marker_map[names[i]]] for i in seen_map]])
+        skin = _skin(model)
+        Y = neutral @ T[:3, :3].T + T[:3, 3]
+        d = np.full(len(names), np.nan)
+        seen = np.isfinite(Y).all(axis=1)
+        d[seen] = skin.closest(Y[seen])[1]
+        kept = seen.copy()
+        kept[hidx] = False
+        reg = Registration(R=T[:3, :3], t=T[:3, 3], scale=1.0, rms=float(np.sqrt(np.nanmean(d[kept] ** 2))),
+                           max=float(np.nanmax(d[kept])), distance=d, kept=kept, starts=0)
+    else:
+        reg = register_capture(model, neutral, head=hidx, similarity=similarity)
+    markers, rows, rejected = bind_layout(model, names, reg.apply(neutral), head)
+    if marker_map:   # mapped markers take the model's own binding
+        tri, bary, offset, is_head = (markers.triangle.copy(), markers.bary.copy(), markers.offset.copy(),
+                                      markers.head.copy())
+        for k, n in enumerate(markers.names):
+            if n in marker_map:
+                j = model_index[marker_map[n]]
+                tri[k], bary[k], offset[k] = model.markers.triangle[j], model.markers.bary[j], model.markers.offset[j]
+                is_head[k] = is_head[k] or model.markers.head[j]
+                rows[k].update(triangle=int(tri[k]), b0=bary[k, 0], b1=bary[k, 1], b2=bary[k, 2],
+                               offset_mm=float(offset[k]), role="head" if is_head[k] else "skin")
+        markers = MarkerSet(markers.names, tri, bary, offset, is_head)
+    if markers.head.sum() < 3:
+        raise FacesimError(f"head markers: only {int(markers.head.sum())} of {', '.join(head)} could be bound "
+                           f"({'; '.join(f'{k}: {v}' for k, v in rejected.items() if k in head)})")
+    index = np.array([names.index(n) for n in markers.names], dtype=np.int64)
+    return Layout(markers, index, reg, rows, rejected, head, source, marker_map)
+
+
+__all__ = ["DEFAULT_BIND_FRAMES", "KEEP", "Layout", "fit_layout", "MAX_DEPTH", "MAX_HEAD_DISTANCE", "MAX_SKIN_DISTANCE", "PLACED_HEADER", "Registration",
            "bind_layout", "propose_head_markers", "read_marker_map", "register_capture", "write_placement"]
