@@ -318,11 +318,17 @@ def cmd_model_render(args) -> int:
     show = _layers(args.hide)
     from facesim.viz.render import render_contact_sheet, render_model
 
+    if args.color_by != "none":
+        raise FacesimError(f"--color-by {args.color_by}: a model at rest has no "
+                           f"{'activations' if args.color_by == 'activation' else 'displacement'}; colour a solved "
+                           "or simulated frame with 'facesim simulate --render --color-by ...' or 'facesim solve-mocap "
+                           "--render --color-by ...'")
+    _warn_ignored(args, [("opacity", "skin" not in show, "with --hide skin"), ("view", args.sheet, "with --sheet")])
     model = _load(args.model)
     if args.sheet:
         size = args.size or (600, 600)
         render_contact_sheet(model, out, show=show, skin_opacity=args.opacity, tile_size=size,
-                             progress=not args.quiet)
+                             progress=not args.quiet, legend=not args.no_legend)
     else:
         render_model(model, out, view=args.view, show=show, skin_opacity=args.opacity,
                      size=args.size or (1200, 1200), legend=not args.no_legend)
@@ -331,13 +337,22 @@ def cmd_model_render(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from facesim.fem.newton import NewtonOptions
     from facesim.controls_io import check_same_frames, read_activations_csv, read_jaw_csv
-    from facesim.simulate import SimulateOptions, simulate
 
+    render = args.render or args.video
+    contact = args.teeth_contact or args.lip_contact or args.collider or args.controls_from is not None
+    _warn_ignored(args, [("view", not render, "without --render or --video"),
+                         ("size", not render, "without --render or --video"),
+                         ("color_by", not render, "without --render or --video"),
+                         ("contact_stiffness", not contact, "without --teeth-contact, --lip-contact or --collider")])
     model = _load(args.model)
+    if args.controls_from is not None:
+        return _simulate_solved(args, model)
+    if args.activations is None:
+        raise FacesimError("simulate: give the controls: --activations A.csv (and --jaw J.csv), or --controls-from "
+                           "OUT_DIR of a solve-mocap run")
     frames, A = read_activations_csv(args.activations, model.muscles.names)
-    jaw_model = args.jaw_model
+    jaw_model = args.jaw_model or "rigid"
     if jaw_model == "posselt":   # the model's own rig: the file beside the model, or the shipped one
         from facesim.kinematics.jaw_models import make_jaw_model
 
@@ -353,13 +368,56 @@ def cmd_simulate(args) -> int:
         check_jaw(model, jm, frames, T, args.jaw)
     colliders = _colliders(args, Path(args.activations).parent)
     check_colliders(model, colliders, frames, jm, T)
-    seconds = _frame_seconds(args, model)
-    options = SimulateOptions(newton=NewtonOptions(linear_solver=args.solver, max_seconds=seconds), fps=args.fps,
-                              render=args.render or args.video, video=args.video, view=args.view, size=args.size,
-                              teeth_contact=args.teeth_contact, lip_contact=args.lip_contact,
-                              contact_stiffness=args.contact_stiffness)
+    options = _simulate_options(args, model)
     info = {"model": str(args.model), "activations": str(args.activations),
             "jaw": str(args.jaw) if args.jaw else None, "collider_specs": list(args.collider)}
+    return _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info)
+
+
+def _simulate_options(args, model, teeth: bool = False, lips: bool = False, stiffness=None):
+    from facesim.fem.newton import NewtonOptions
+    from facesim.simulate import SimulateOptions
+
+    return SimulateOptions(newton=NewtonOptions(linear_solver=args.solver, max_seconds=_frame_seconds(args, model)),
+                           fps=args.fps, render=args.render or args.video, video=args.video, view=args.view,
+                           size=args.size, teeth_contact=args.teeth_contact or teeth,
+                           lip_contact=args.lip_contact or lips, contact_stiffness=stiffness or args.contact_stiffness,
+                           color_by=args.color_by)
+
+
+def _simulate_solved(args, model) -> int:
+    """simulate --controls-from OUT_DIR: the frames a solve-mocap run solved, with its jaw model and
+    contact set-up, in the model frame (the solve stabilised the head)."""
+    from facesim.controls_io import read_replay
+    from facesim.fem.plausible import check_colliders, check_jaw
+
+    given = [name for name, v in (("--activations", args.activations), ("--jaw", args.jaw),
+                                  ("--jaw-model", args.jaw_model)) if v is not None]
+    if given:
+        raise FacesimError(f"--controls-from: excludes {', '.join(given)} (the solve's controls and jaw model are "
+                           "read from OUT_DIR)")
+    r = read_replay(args.controls_from, model, args.model)
+    colliders = _colliders(args, Path(args.controls_from))
+    if len(colliders) != r.n_colliders:
+        raise FacesimError(f"--controls-from: the run was solved with {r.n_colliders} collider(s), {len(colliders)} "
+                           "given; give the solve's --collider specs again")
+    if r.jaw is not None:
+        check_jaw(model, r.jaw_model, r.frames, r.jaw, Path(args.controls_from) / "jaw.csv")
+    check_colliders(model, colliders, r.frames, r.jaw_model, r.jaw)
+    if r.rebound:
+        print("note: the solve bound its markers to the capture (--bind-frames); the markers written here are the "
+              "model's own placement")
+    options = _simulate_options(args, model, r.teeth_contact, r.lip_contact, r.contact_stiffness)
+    info = {"model": str(args.model), "controls_from": str(args.controls_from),
+            "activations": str(Path(args.controls_from) / "activations.csv"),
+            "jaw": str(Path(args.controls_from) / "jaw.csv") if r.jaw is not None else None,
+            "collider_specs": list(args.collider)}
+    return _run_simulate(args, model, r.A, r.frames, r.jaw, r.jaw_model, colliders, options, info)
+
+
+def _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info) -> int:
+    from facesim.simulate import simulate
+
     s = simulate(model, A, args.output, frames=frames, jaw=T, jaw_model=jaw_model, colliders=colliders,
                  options=options, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, info=info)
     reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
@@ -370,6 +428,20 @@ def cmd_simulate(args) -> int:
     elif "video" in s["outputs"]:
         print(f"video: {s['outputs']['video']}")
     _warn_unconverged(s, Path(args.output) / "frames.csv")
+    return 0
+
+
+def cmd_export_cache(args) -> int:
+    from facesim.caches import export_cache
+
+    model = _load(args.model)
+    s = export_cache(args.run, model, usd=args.usd, pvd=args.pvd, c3d=args.c3d, fps=args.fps)
+    skipped = f"; {len(s['unconverged_frames'])} did not converge and show the last converged frame" \
+        if s["unconverged_frames"] else ""
+    print(f"cached {s['frames']} frames of {args.run} at {s['fps']:g} fps{skipped}")
+    for kind in ("usd", "pvd", "c3d"):
+        if s[kind]:
+            print(f"  {kind}: {s[kind]}")
     return 0
 
 
@@ -384,28 +456,38 @@ def cmd_solve_mocap(args) -> int:
     from facesim.inverse.parallel import SimulatorSpec, dask_client
     from facesim.fem.plausible import check_colliders
     from facesim.inverse.tracking import TrackOptions, track
-    from facesim.mocap.binding import bind_neutral, match_markers
+    from facesim.mocap.binding import bind_neutral, match_markers, with_markers
     from facesim.mocap.io import check_capture_scale, frame_mask, marker_spread, read_markers
     from facesim.viz.plots import plot_track
 
+    _warn_ignored(args, [("loss_scale", args.loss == "l2", "with --loss l2"),
+                         ("head_smoothing", args.head == "none", "with --head none"),
+                         ("color_by", not args.render, "without --render"),
+                         ("contact_stiffness", args.no_contact and not args.collider,
+                          "with --no-contact and no --collider")])
     model = _load(args.model)
     data = read_markers(args.markers, units=args.units)
     index, extra, missing = match_markers(model.markers.names, data.names)
-    if (index >= 0).sum() < 3:
-        raise FacesimError(f"{args.markers}: only {int((index >= 0).sum())} of the model's {model.n_markers} marker "
-                           f"names found (file has {', '.join(data.names[:5])}...); expected the model's names "
-                           "('facesim model info' lists them)")
-    matched = index >= 0   # the capture's size against the model's, on the markers both have (a unit mistake)
-    check_capture_scale(data.select([data.names[j] for j in index[matched]]),
-                        marker_spread(model.marker_positions()[matched])[0], args.markers, units_given=args.units)
-    if extra or missing:
-        print(f"markers: {int((index >= 0).sum())} matched; not in the model: {', '.join(extra) or '-'}; "
-              f"not in the file: {', '.join(missing) or '-'}")
-    P = np.full((len(data.frames), model.n_markers, 3), np.nan)
-    P[:, index >= 0] = data.P[:, index[index >= 0]]
-    frames = data.frames
-    # rebind the model's markers to the capture's neutral frames
-    neutral = P[frame_mask(args.bind_frames, frames, "--bind-frames")] if args.bind_frames is not None else None
+    layout = None
+    if _capture_layout(args, int((index >= 0).sum())):
+        layout = _fit_capture_layout(args, model, data)
+        P, frames, neutral = layout.to_model(data.P), data.frames, None   # bound to the neutral frames already
+    else:
+        if (index >= 0).sum() < 3:
+            raise FacesimError(f"{args.markers}: only {int((index >= 0).sum())} of the model's {model.n_markers} "
+                               f"marker names found (file has {', '.join(data.names[:5])}...); expected the model's "
+                               "names ('facesim model info' lists them), or --layout capture")
+        matched = index >= 0   # the capture's size against the model's, on the markers both have (a unit mistake)
+        check_capture_scale(data.select([data.names[j] for j in index[matched]]),
+                            marker_spread(model.marker_positions()[matched])[0], args.markers, units_given=args.units)
+        if extra or missing:
+            print(f"markers: {int((index >= 0).sum())} matched; not in the model: {', '.join(extra) or '-'}; "
+                  f"not in the file: {', '.join(missing) or '-'}")
+        P = np.full((len(data.frames), model.n_markers, 3), np.nan)
+        P[:, index >= 0] = data.P[:, index[index >= 0]]
+        frames = data.frames
+        # rebind the model's markers to the capture's neutral frames
+        neutral = P[frame_mask(args.bind_frames, frames, "--bind-frames")] if args.bind_frames is not None else None
     if args.frames is not None:
         keep = frame_mask(args.frames, frames, "--frames")
         frames, P = frames[keep], P[keep]
@@ -419,20 +501,29 @@ def cmd_solve_mocap(args) -> int:
     options = TrackOptions(fit=FitOptions(noise=args.noise, max_steps=args.max_steps,
                                           max_seconds=_frame_seconds(args, model)), head=args.head,
                            robust=not args.no_robust, loss=args.loss, loss_scale=args.loss_scale,
-                           chunk_size=args.chunk_size, head_smoothing=args.head_smoothing)
+                           chunk_size=args.chunk_size, head_smoothing=args.head_smoothing,
+                           write_meshes=args.write_meshes)
     parallel = args.workers is not None or args.scheduler is not None
+    if layout is not None and parallel:
+        raise FacesimError("--workers/--scheduler: not yet supported with the capture's own marker layout; "
+                           "solve it without them")
+    solver = spec if layout is None else with_markers(spec.build(), layout.markers)
     with dask_client(args.workers, args.scheduler) if parallel else nullcontext() as client:
-        s = track(spec, frames, P, args.output, options=options, resume=args.resume, overwrite=args.overwrite,
+        s = track(solver, frames, P, args.output, options=options, resume=args.resume, overwrite=args.overwrite,
                   progress=not args.quiet, client=client, neutral=neutral,
                   info={"model": str(args.model), "markers": str(args.markers), "jaw_model": args.jaw_model,
-                        "frames": args.frames, "bind_frames": args.bind_frames, "units": args.units})
+                        "frames": args.frames, "bind_frames": args.bind_frames, "units": args.units},
+                  fps=data.rate or 30.0)
     plot_track(args.output)
+    if layout is not None:
+        _write_placement(args.output, solver.model, layout)
     if args.render:
         from facesim.viz.solve import render_solve
 
-        sim = spec.build() if neutral is None else bind_neutral(spec.build(), neutral, args.head)[0]   # as solved
+        sim = solver if layout is not None else \
+            spec.build() if neutral is None else bind_neutral(spec.build(), neutral, args.head)[0]   # as solved
         video = render_solve(sim, args.output, frames, P, head=args.head, head_smoothing=args.head_smoothing,
-                             fps=data.rate or 30.0,
+                             fps=data.rate or 30.0, color_by=args.color_by,
                              progress=not args.quiet)
         print(f"video: {video}")
     if s["outliers"]:
@@ -444,6 +535,60 @@ def cmd_solve_mocap(args) -> int:
           f"-> {args.output}")
     _warn_unconverged(s, Path(args.output) / "frames.csv")
     return 0
+
+
+def _capture_layout(args, matched: int) -> bool:
+    """solve-mocap on the capture's own markers (registered and bound to the skin) rather than the
+    model's: --layout capture, --head-markers or --marker-map, or (--layout auto) fewer than 3 of
+    the capture's names are the model's."""
+    if args.layout == "model":
+        for name, value in (("--head-markers", args.head_markers), ("--marker-map", args.marker_map)):
+            if value:
+                raise FacesimError(f"{name}: needs the capture's own layout; leave out --layout model")
+        return False
+    return args.layout == "capture" or bool(args.head_markers) or bool(args.marker_map) or matched < 3
+
+
+def _fit_capture_layout(args, model, data):
+    """The capture's own layout on the model (:func:`facesim.mocap.layout.fit_layout`), printed."""
+    import numpy as np
+
+    from facesim.mocap.io import check_capture_scale, frame_mask, marker_spread
+    from facesim.mocap.layout import DEFAULT_BIND_FRAMES, fit_layout, read_marker_map
+
+    if model.n_markers >= 3:   # a unit mistake: the capture's size against the model's markers'
+        check_capture_scale(data, marker_spread(model.marker_positions())[0], args.markers, units_given=args.units)
+    if args.bind_frames is not None:
+        bind, said = frame_mask(args.bind_frames, data.frames, "--bind-frames"), f"--bind-frames {args.bind_frames}"
+    else:
+        bind = np.arange(len(data.frames)) < DEFAULT_BIND_FRAMES
+        said = f"the first {int(bind.sum())} frames (--bind-frames to choose)"
+    heads = [h.strip() for h in args.head_markers.split(",") if h.strip()] if args.head_markers else None
+    mapping = read_marker_map(args.marker_map) if args.marker_map else None
+    layout = fit_layout(model, data.names, data.P, bind, head_names=heads, marker_map=mapping,
+                        similarity=args.similarity, noise=args.noise)
+    r = layout.registration
+    print(f"layout: the capture's own {len(data.names)} markers; neutral: {said}")
+    print(f"head markers ({layout.head_source}): {', '.join(layout.head)}")
+    print(f"registration to the skin: RMS {r.rms:.2f} mm, max {r.max:.2f} mm over {int(r.kept.sum())} markers "
+          f"(rotation {r.summary()['rotation_deg']:.1f} deg" + (f", scale {r.scale:.4f}" if args.similarity else "")
+          + ")" + (f"; {len(layout.mapped)} mapped to the model's markers" if layout.mapped else ""))
+    skin = [row["distance_mm"] for row in layout.rows if row["role"] == "skin"]
+    print(f"placed {layout.markers.n_markers} markers ({int(layout.markers.head.sum())} head, {len(skin)} skin; skin "
+          f"markers {np.median(skin) if skin else 0:.2f} mm from the skin (median), {max(skin, default=0):.2f} max)")
+    for name, why in layout.rejected.items():
+        print(f"  refused {name}: {why}")
+    return layout
+
+
+def _write_placement(out, model, layout) -> None:
+    """OUT/markers_placed.csv and OUT/markers_placed.png (the placed markers on the face)."""
+    from facesim.mocap.layout import write_placement
+    from facesim.viz.render import render_model
+
+    path = write_placement(Path(out) / "markers_placed.csv", layout.rows)
+    png = render_model(model, Path(out) / "markers_placed.png", title="placed markers (head: yellow)")
+    print(f"placement: {path}, {png}")
 
 
 def _mocap_contact(args, model, base: Path) -> dict:
@@ -461,6 +606,25 @@ def _mocap_contact(args, model, base: Path) -> dict:
     print(f"contact: {state}" + (f", {len(colliders)} collider(s)" if colliders else ""))
     return {"lip_contact": lips, "teeth_contact": teeth, "colliders": tuple(colliders),
             "contact_stiffness": args.contact_stiffness}
+
+
+def _add_color_by_option(parser, where: str) -> None:
+    """``--color-by`` (one meaning in model render, simulate and solve-mocap)."""
+    from facesim.viz.render import COLOR_BY
+
+    parser.add_argument("--color-by", choices=COLOR_BY, default="none",
+                        help="colour the skin by its displacement |x - X| (mm, colour bar from 0 to the frame's "
+                             "largest), or each muscle by its activation in the frame (0 to 1, colour bar; the skin "
+                             f"then translucent), instead of one colour per muscle; {where} (default: %(default)s)")
+
+
+def _warn_ignored(args, rules) -> None:
+    """One warning line on stderr per option given that the command ignores: ``rules`` are
+    ``(dest, ignored, why)``; an option counts as given when its value differs from its default."""
+    for dest, ignored, why in rules:
+        if ignored and getattr(args, dest) != args.command_parser.get_default(dest):
+            flag = "--" + dest.replace("_", "-")
+            print(f"facesim: warning: {flag} is ignored {why}", file=sys.stderr)
 
 
 def _frame_seconds(args, model) -> float:
@@ -593,8 +757,8 @@ def build_parser() -> argparse.ArgumentParser:
     build = sub.add_parser(
         "build", help="build a procedural head model",
         description="Build a procedural anatomical head (flesh tets, muscles, skull, jaw, teeth, markers) and "
-                    "save it as a model .npz. Resolutions: test (smallest), coarse (~30K tets), medium (~100K), "
-                    "paper (>= 350K simulated tets, slow).")
+                    "save it as a model .npz. Resolutions: test (smallest), coarse (~40K tets, ~31K simulated), "
+                    "medium (~138K, ~103K simulated), paper (>= 350K simulated tets, slow).")
     build.add_argument("--resolution", choices=RESOLUTIONS, default="coarse",
                        help="mesh resolution (default: %(default)s)")
     build.add_argument("--seed", type=_count(0, 2**32 - 1), default=0,
@@ -649,11 +813,14 @@ def build_parser() -> argparse.ArgumentParser:
                         help="contact sheet of the front, side, three-quarter and top views instead of one view")
     render.add_argument("--size", type=_size, default=None, metavar="WxH",
                         help="picture size in pixels, per view with --sheet (default: 1200x1200, with --sheet 600x600)")
-    render.add_argument("--opacity", type=_opacity, default=0.35,
-                        help="skin opacity, 0 (invisible) to 1 (opaque) (default: %(default)s)")
+    render.add_argument("--opacity", type=_opacity, default=None,
+                        help="skin opacity, 0 (invisible) to 1 (opaque) (default: 1, opaque; the muscle legend is "
+                             "drawn when the muscles show: use e.g. --opacity 0.35 or --hide skin)")
+    _add_color_by_option(render, "only 'none' here: a model at rest has no displacement and no activations; "
+                                 "colour a frame with simulate --render or solve-mocap --render")
     render.add_argument("--no-legend", action="store_true", help="no muscle legend")
     render.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    render.set_defaults(func=cmd_model_render)
+    render.set_defaults(func=cmd_model_render, command_parser=render)
 
     simulate = commands.add_parser(
         "simulate", help="simulate a sequence of frames from muscle activations (and jaw poses)",
@@ -671,14 +838,19 @@ def build_parser() -> argparse.ArgumentParser:
                "condyle midpoint, then translation in mm) or 'frame,opening' (rad about the intercondylar axis, "
                "positive opens the mouth).")
     simulate.add_argument("--model", required=True, metavar="M.npz", help="model file")
-    simulate.add_argument("--activations", required=True, metavar="A.csv", help="muscle activations per frame")
+    simulate.add_argument("--activations", metavar="A.csv", help="muscle activations per frame (or --controls-from)")
     simulate.add_argument("--jaw", metavar="J.csv", help="jaw pose per frame (default: jaw at rest)")
-    simulate.add_argument("--jaw-model", default="rigid", metavar="{rigid,sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
+    simulate.add_argument("--controls-from", metavar="OUT_DIR",
+                          help="simulate the frames a solve-mocap run solved: OUT_DIR/activations.csv and jaw.csv "
+                               "with the jaw model and contact set-up the run recorded, in the model frame (the "
+                               "solve stabilised the head); the run must have been solved with this --model; "
+                               "excludes --activations, --jaw and --jaw-model")
+    simulate.add_argument("--jaw-model", default=None, metavar="{rigid,sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
                           help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening), "
                                "sliding-condyle (frame,opening,right_slide,left_slide in rad, mm, mm; Sifakis 2005), "
                                "or a fitted jaw rig (facesim jaw fit): posselt:RIG.npz with frame,sx,sy,sz sliders in "
                                "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3; posselt alone is the model's own rig "
-                               "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")
+                               "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: rigid)")
     _add_contact_options(simulate, "A.csv")
     simulate.add_argument("-o", "--output", required=True, type=_folder, metavar="OUT_DIR", help="output folder")
     simulate.add_argument("--render", action="store_true",
@@ -690,6 +862,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="camera of --render (default: %(default)s)")
     simulate.add_argument("--size", type=_size, default=(640, 640), metavar="WxH",
                           help="picture size of --render in pixels (default: 640x640)")
+    _add_color_by_option(simulate, "in the --render pictures")
     simulate.add_argument("--fps", type=_fps, default=30.0,
                           help="frame rate in Hz of the TRC time column and the video (default: %(default)g)")
     again = simulate.add_mutually_exclusive_group()
@@ -704,7 +877,23 @@ def build_parser() -> argparse.ArgumentParser:
                                "or MKL PARDISO (pip install 'facesim[pardiso]') (default: %(default)s)")
     _add_budget_option(simulate)
     simulate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    simulate.set_defaults(func=cmd_simulate)
+    simulate.set_defaults(func=cmd_simulate, command_parser=simulate)
+
+    cache = commands.add_parser(
+        "export-cache", help="animation caches of a finished run: USD, ParaView .pvd series, C3D of the markers",
+        description="Write caches of the run in OUT_DIR (a folder written by simulate, or solve-mocap --write-meshes: "
+                    "state/frame_KKKKK.npz) for other tools: --usd a USD stage (skin as a time-sampled mesh, cranium "
+                    "and jaw surfaces with time-sampled transforms, markers; mm, y up; pip install usd-core), --pvd "
+                    "a ParaView collection of per-frame .vtu volumes (point data displacement, cell data activation, "
+                    "active_stress, tissue, muscle), --c3d the simulated markers. Frames that did not converge show "
+                    "the last converged frame and are listed in the caches.")
+    cache.add_argument("run", metavar="OUT_DIR", help="the run folder")
+    cache.add_argument("--model", required=True, metavar="M.npz", help="the model the run was made with")
+    cache.add_argument("--usd", metavar="OUT.usd", help="USD stage to write (.usd, .usdc binary; .usda text)")
+    cache.add_argument("--pvd", metavar="OUT.pvd", help="ParaView collection to write; the .vtu files go in OUT/ beside it")
+    cache.add_argument("--c3d", metavar="OUT.c3d", help="C3D of the simulated markers (from OUT_DIR/markers.csv)")
+    cache.add_argument("--fps", type=_fps, help="frame rate in Hz (default: the run's, from report.json, else 30)")
+    cache.set_defaults(func=cmd_export_cache)
 
     solve = commands.add_parser(
         "solve-mocap", help="muscle activations and jaw pose per frame from a marker capture",
@@ -744,6 +933,18 @@ def build_parser() -> argparse.ArgumentParser:
                        help="frames of the capture showing the neutral face: the model's markers are first bound "
                             "to the skin where these frames put them (per-marker median; Sifakis 2005), instead "
                             "of the model's own marker placement")
+    solve.add_argument("--layout", choices=("auto", "model", "capture"), default="auto",
+                       help="whose markers: the model's (the capture uses its names), the capture's own (registered "
+                            "to the skin and bound where its neutral frames put them; see docs/cli.md), or auto: "
+                            "the capture's own when fewer than 3 of its names are the model's (default: %(default)s)")
+    solve.add_argument("--head-markers", metavar="NAME,NAME,...",
+                       help="the capture's markers that move with the skull (a headband, nose bridge); implies "
+                            "--layout capture (default: the largest group moving rigidly together, listed)")
+    solve.add_argument("--marker-map", metavar="FILE",
+                       help="CSV 'capture,model': capture markers that are the model's markers (they keep the "
+                            "model's binding); implies --layout capture")
+    solve.add_argument("--similarity", action="store_true",
+                       help="with the capture's own layout, fit a uniform scale in the registration too")
     solve.add_argument("--noise", type=_positive(50.0), default=0.5,
                        help="marker noise level, mm (default: %(default)s)")
     solve.add_argument("--max-steps", type=_count(1, 1000), default=5,
@@ -782,10 +983,16 @@ def build_parser() -> argparse.ArgumentParser:
                             "markers, stabilised; right: the simulated face with its markers and lines to the "
                             "captured ones) into OUT/render/frame_KKKKK.png and OUT/render/video.mp4 (an animated "
                             "GIF video.gif when imageio-ffmpeg is not installed)")
+    solve.add_argument("--write-meshes", action="store_true",
+                       help="also write per frame what simulate writes: OUT/skin/frame_KKKKK.ply (the solved skin, mm) "
+                            "and OUT/state/frame_KKKKK.npz (x, a, jaw, converged, error), from the solve's own "
+                            "equilibria (no re-solve), and at the end OUT/markers.csv and markers.trc of the solved "
+                            "markers (model frame)")
+    _add_color_by_option(solve, "in the simulated panel of the --render pictures")
     _add_contact_options(solve, "F", default_on=True)
     _add_budget_option(solve)
     solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    solve.set_defaults(func=cmd_solve_mocap)
+    solve.set_defaults(func=cmd_solve_mocap, command_parser=solve)
     add_jaw_commands(commands)
     return parser
 

@@ -53,6 +53,7 @@ from facesim.runfolder import RunFolder, describe, fingerprint, finish, parts
 FRAME_LOG_COLUMNS = ("frame", "converged", "stop_reason", "iterations", "relative_residual", "residual_N", "seconds",
                      "linear_iterations", "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm",
                      "inverted_tets", "min_J", "error")
+COLOR_BY = ("none", "displacement", "activation")
 _OUTPUT_FILES = ("markers.csv", "markers.trc", "markers.c3d", "frames.csv", "report.json", "video.mp4", "video.gif")
 _FRAME_FILE = re.compile(r"frame_\d+\.(ply|npz|png)$")
 
@@ -63,7 +64,8 @@ class SimulateOptions:
     """newton : solver options (``linear_solver`` "amg" or "direct"); fps : frame rate of the TRC
     time column and the video (Hz); render : a PNG per frame; video : also a movie of the PNGs
     (implies render); view, size : camera (see :data:`facesim.viz.render.VIEWS`) and pixels;
-    teeth_contact, lip_contact, contact_stiffness : contact of the lips with the teeth and with
+    color_by : ``"none"``, ``"displacement"`` (skin coloured by |x - X|) or ``"activation"``
+    (muscles by the frame's activations) in the renders; teeth_contact, lip_contact, contact_stiffness : contact of the lips with the teeth and with
     each other, penalty stiffness in N/mm^3 (also used for external colliders)."""
 
     newton: NewtonOptions = field(default_factory=NewtonOptions)
@@ -72,6 +74,7 @@ class SimulateOptions:
     video: bool = False
     view: str = "front"
     size: tuple[int, int] = (640, 640)
+    color_by: str = "none"
     teeth_contact: bool = False
     lip_contact: bool = False
     contact_stiffness: float = CONTACT_STIFFNESS
@@ -79,6 +82,8 @@ class SimulateOptions:
     def __post_init__(self):
         if not (math.isfinite(self.fps) and self.fps > 0):
             raise FacesimError(f"fps: expected a frame rate > 0, got {self.fps}")
+        if self.color_by not in COLOR_BY:
+            raise FacesimError(f"color_by: expected one of {', '.join(COLOR_BY)}, got {self.color_by!r}")
         if self.video:
             object.__setattr__(self, "render", True)
 
@@ -285,9 +290,9 @@ def _inputs(model: FaceModel, A, frames, J, jaw_model, setup) -> dict:
 
 
 def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, caption: str = "",
-          skin: bool = True, png: bool = True, colliders=()) -> None:
+          skin: bool = True, png: bool = True, colliders=(), a=None) -> None:
     """The skin PLY and, with ``options.render``, the PNG of frame ``k`` at positions ``x`` (with the
-    posed external ``colliders``)."""
+    posed external ``colliders``; ``a``: the frame's activations, for ``color_by="activation"``)."""
     from facesim.export import export_skin
 
     x = np.where(np.isfinite(x), x, model.X)   # a diverged solve must not break the files
@@ -297,7 +302,8 @@ def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, capt
         from facesim.viz.render import render_model
 
         render_model(model, out.png(k), view=options.view, x=x, size=options.size, title=f"frame {k}{caption}",
-                     frame_on=model.X, extra=[c.surface() for c in colliders])
+                     frame_on=model.X, extra=[c.surface() for c in colliders], color_by=options.color_by,
+                     a=a if options.color_by == "activation" else None)
 
 
 def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, jaw_model="rigid", colliders=(),
@@ -410,7 +416,7 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
         if skin or png:
             posed = simulation().posed_colliders(k, Controls(A[i], jaw=J[i] if posed_jaw else None)) \
                 if png and colliders else ()
-            _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed)
+            _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed, a=A[i])
 
     frame_log = FrameLog(out.frames_csv, log_header, old_rows)
     marker_log = FrameLog(out.markers_csv, mk_header, old_marks)
@@ -425,7 +431,7 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
                 seconds = f.seconds if f.report is not None else time.perf_counter() - t0
                 write_frame(out.root, model, k, x, A[i], J[i], converged, f.error)
                 _draw(out, model, k, x, options, "" if converged else " (not converged)", skin=False,
-                      colliders=f.colliders)
+                      colliders=f.colliders, a=A[i])
                 P = model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan)
                 marker_log.add(marker_csv_line(k, P))
                 row = _frame_row(k, f, seconds)
