@@ -2,7 +2,9 @@
 
 A jaw model maps the jaw controls ``q`` to the mandible's 4x4 rigid transform relative to the
 skull (mm). Every jaw model -- :class:`RigidJaw`, the sliding-condyle jaw
-(:class:`~facesim.kinematics.condyle.SlidingCondyleJaw`, Sifakis 2005 section 8) and every fitted rig
+(:class:`~facesim.kinematics.condyle.SlidingCondyleJaw`, Sifakis 2005 section 8), its affine
+formulation (:class:`~facesim.kinematics.affine_jaw.AffineCondyleJaw`: 12 frame coefficients and
+penalties, as the paper solves it) and every fitted rig
 (:class:`~facesim.kinematics.rig_jaw.RigJaw`: Posselt, NLPCA, 1/3/5/6-DOF) -- implements
 :class:`JawModel`; the simulator, the inverse solver and the file readers use nothing else.
 
@@ -88,13 +90,15 @@ class RigidJaw:
 
 
 #: jaw models by name; fitted rigs also as ``posselt:RIG.npz``, ``nlpca:RIG.npz``, ``classic:RIG.npz``
-JAW_MODELS = ("rigid", "sliding-condyle", "posselt")
+JAW_MODELS = ("rigid", "sliding-condyle", "affine-condyle", "posselt")
 RIG_SPECS = ("posselt:RIG.npz", "nlpca:RIG.npz", "classic:RIG.npz")
 
 
 def make_jaw_model(model, spec="rigid", model_path=None) -> JawModel:
     """A jaw model from a name: ``"rigid"`` (controls: a 4x4 transform), ``"sliding-condyle"``
-    (opening rad, right slide mm, left slide mm), ``"posselt"`` (the model's own Posselt rig,
+    (opening rad, right slide mm, left slide mm), ``"affine-condyle"`` (the jaw frame's 12 affine
+    coefficients with the sliding-condyle joint and rigidity as penalties,
+    :class:`~facesim.kinematics.affine_jaw.AffineCondyleJaw`), ``"posselt"`` (the model's own Posselt rig,
     fitted to motion generated for its TMJ: ``<model>_posselt.npz`` next to ``model_path`` when
     given, else the shipped rig recording the same TMJ, see
     :func:`~facesim.kinematics.rig_jaw.model_rig_jaw`), a fitted rig ``"posselt:RIG.npz"``,
@@ -111,6 +115,10 @@ def make_jaw_model(model, spec="rigid", model_path=None) -> JawModel:
         from facesim.kinematics.condyle import SlidingCondyleJaw
 
         return SlidingCondyleJaw(model.jaw)
+    if spec == "affine-condyle":
+        from facesim.kinematics.affine_jaw import AffineCondyleJaw
+
+        return AffineCondyleJaw(model.jaw)
     if spec == "posselt":
         from facesim.kinematics.rig_jaw import model_rig_jaw
 
