@@ -845,10 +845,12 @@ def build_parser() -> argparse.ArgumentParser:
                                "with the jaw model and contact set-up the run recorded, in the model frame (the "
                                "solve stabilised the head); the run must have been solved with this --model; "
                                "excludes --activations, --jaw and --jaw-model")
-    simulate.add_argument("--jaw-model", default=None, metavar="{rigid,sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
+    simulate.add_argument("--jaw-model", default=None,
+                          metavar="{rigid,sliding-condyle,affine-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
                           help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening), "
                                "sliding-condyle (frame,opening,right_slide,left_slide in rad, mm, mm; Sifakis 2005), "
-                               "or a fitted jaw rig (facesim jaw fit): posselt:RIG.npz with frame,sx,sy,sz sliders in "
+                               "affine-condyle (frame,m00,...,m22,tx,ty,tz: the mandible's affine frame, M row-major "
+                               "and t in mm, as solve-mocap --jaw-model affine-condyle writes it), or a fitted jaw rig (facesim jaw fit): posselt:RIG.npz with frame,sx,sy,sz sliders in "
                                "[0, 1], nlpca:RIG.npz with frame,d1,d2,d3; posselt alone is the model's own rig "
                                "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: rigid)")
     _add_contact_options(simulate, "A.csv")
@@ -916,8 +918,11 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("-o", "--output", required=True, type=_folder, metavar="OUT_DIR", help="output folder")
     solve.add_argument("--units", choices=("mm", "cm", "m"), help="override the file's length unit")
     solve.add_argument("--jaw-model", default="sliding-condyle",
-                       metavar="{sliding-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
-                       help="jaw parameterisation solved for; posselt alone is the model's own Posselt rig "
+                       metavar="{sliding-condyle,affine-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
+                       help="jaw parameterisation solved for: sliding-condyle's 3 natural parameters, or "
+                            "affine-condyle, the jaw frame's 12 affine coefficients with the condyle-track and "
+                            "rigidity constraints as penalties in the progressive schedule (Sifakis 2005 section 8; "
+                            "same accuracy on the demo clip, ~20-40%% slower); posselt alone is the model's own Posselt rig "
                             "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")
     solve.add_argument("--head", choices=("procrustes", "none"), default="procrustes",
                        help="stabilise the head with the head markers, or take the capture as already stabilised "

@@ -197,7 +197,7 @@ def read_replay(out_dir, model: FaceModel, model_path=None) -> Replay:
     report = _json(out / "report.json", where) if (out / "report.json").is_file() else {}
     used = report.get("jaw_model_used") or {}
     recorded = inputs.get("jaw_model") or {}
-    spec = used.get("spec") or (recorded.get("name") if recorded.get("name") in ("rigid", "sliding-condyle") else None)
+    spec = used.get("spec") or (recorded.get("name") if recorded.get("name") in ("rigid", "sliding-condyle", "affine-condyle") else None)
     if spec is None:
         raise FacesimError(f"{where}: {out / 'report.json'} does not say how to rebuild the jaw model "
                            f"{recorded.get('name')!r} of the solve (a run of an older facesim?); simulate with "

@@ -708,7 +708,7 @@ def _jaw_record(sim, spec) -> dict:
     the spec it was made from (rig files as absolute paths; None for a jaw model given as an
     object) and its content fingerprint."""
     return {"name": sim.jaw_model.name, "spec": spec.jaw_model if spec is not None else
-            (sim.jaw_model.name if sim.jaw_model.name in ("rigid", "sliding-condyle") else None),
+            (sim.jaw_model.name if sim.jaw_model.name in ("rigid", "sliding-condyle", "affine-condyle") else None),
             "content": fingerprint(sim.jaw_model)}
 
 
