@@ -578,7 +578,28 @@ def _fit_capture_layout(args, model, data):
           f"markers {np.median(skin) if skin else 0:.2f} mm from the skin (median), {max(skin, default=0):.2f} max)")
     for name, why in layout.rejected.items():
         print(f"  refused {name}: {why}")
+    _warn_head_spread(model.with_(markers=layout.markers))
     return layout
+
+
+#: Second principal spread (RMS, mm) of the head markers below which the head's rotation is poorly
+#: determined by them (markers nearly on a line; the model's own six spread 112, 68 and 40 mm).
+HEAD_SPREAD_MM = 10.0
+
+
+def _warn_head_spread(model) -> None:
+    """One warning line when the head markers lie nearly on a line (the stabilisation's rotation
+    about that line rests on their noise)."""
+    import numpy as np
+
+    P = model.marker_positions()[model.markers.head]
+    if len(P) < 3:
+        return
+    spread = np.linalg.svd(P - P.mean(axis=0), compute_uv=False) / np.sqrt(len(P))
+    if spread[1] < HEAD_SPREAD_MM:
+        print(f"facesim: warning: the {len(P)} head markers lie nearly on a line (spreads "
+              f"{', '.join(f'{v:.1f}' for v in spread)} mm): the head's rotation about it is poorly determined; "
+              f"spread them out (forehead and temples, {HEAD_SPREAD_MM:g} mm or more across the line)", file=sys.stderr)
 
 
 def _write_placement(out, model, layout) -> None:

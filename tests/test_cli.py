@@ -218,3 +218,20 @@ def test_an_unexpected_exception_is_one_line_and_exit_3(box_model_path, capsys, 
     monkeypatch.setenv("FACESIM_DEBUG", "1")
     with pytest.raises(RuntimeError):
         cli.main(["model", "info", str(box_model_path)])
+
+
+def test_head_markers_on_a_line_warn(capsys):
+    """Head markers nearly on a line leave the head's rotation about it to their noise: one warning."""
+    from types import SimpleNamespace
+
+    import facesim.cli as cli
+
+    def fake(P):
+        P = np.asarray(P, dtype=float)
+        return SimpleNamespace(marker_positions=lambda: P, markers=SimpleNamespace(head=np.ones(len(P), bool)))
+
+    cli._warn_head_spread(fake([[-40, 100, 60], [-13, 101, 62], [13, 101, 62], [40, 100, 60]]))
+    err = capsys.readouterr().err
+    assert err.startswith("facesim: warning: the 4 head markers lie nearly on a line") and err.count("\n") == 1
+    cli._warn_head_spread(fake([[-40, 100, 60], [40, 100, 60], [-70, 60, 0], [70, 60, 0]]))   # forehead + temples
+    assert capsys.readouterr().err == ""
