@@ -441,8 +441,8 @@ def write_placement(path, rows) -> Path:
     """OUT/markers_placed.csv: one row per bound marker (:data:`PLACED_HEADER`); return its path."""
     from facesim._files import atomic_write
 
-    def fmt(v):
-        return f"{v:.6g}" if isinstance(v, float) else str(v)
+    def fmt(v):   # 12 digits: the barycentric coordinates read back sum to 1 within 1e-9 (MarkerSet's check)
+        return f"{v:.12g}" if isinstance(v, float) else str(v)
 
     text = ",".join(PLACED_HEADER) + "\n" + "".join(",".join(fmt(r[k]) for k in PLACED_HEADER) + "\n" for r in rows)
     return atomic_write(Path(path), lambda tmp: tmp.write_text(text))
