@@ -131,3 +131,14 @@ def box_model() -> FaceModel:
 def box_model_path(box_model, tmp_path_factory):
     """The synthetic model saved to a .npz (do not modify the file)."""
     return box_model.save(tmp_path_factory.mktemp("model") / "box.npz")
+
+
+def one_numba_thread():
+    """Generator for a module-scoped fixture: numba on one thread while the module runs, as in
+    subprocesses started with NUMBA_NUM_THREADS=1 (the same sums, so results compare bit for bit)."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(before)

@@ -18,20 +18,15 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from tests.conftest import one_numba_thread
+
 from facesim.cli import main
 from facesim.model import Tissue
 
 N_FRAMES = 6
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    import numba
-
-    before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(before)
+one_thread = pytest.fixture(scope="module", autouse=True)(one_numba_thread)
 
 
 @pytest.fixture(scope="module")

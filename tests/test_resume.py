@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import one_numba_thread
+
 from facesim.errors import FacesimError
 from facesim.model import Tissue, load_model
 
@@ -52,15 +54,7 @@ def run(kind: str, folder, out, resume: bool = False, overwrite: bool = False, m
                     options=SimulateOptions(newton=newton), resume=resume, overwrite=overwrite, progress=progress)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """Solves on one thread, as in the subprocesses (NUMBA_NUM_THREADS=1): the same sums."""
-    import numba
-
-    before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(before)
+one_thread = pytest.fixture(scope="module", autouse=True)(one_numba_thread)
 
 
 @pytest.fixture(scope="module")
