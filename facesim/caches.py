@@ -304,8 +304,12 @@ def write_usd(model: FaceModel, run: Run, path, fps: float | None = None) -> Pat
         "units": "mm", "unconverged_frames": Vt.IntArray(unconverged)}}
 
     def export(tmp: Path):
-        if not layer.Export(str(tmp)):
-            raise OSError(f"USD could not write {tmp.name}")
+        try:
+            ok = layer.Export(str(tmp))
+        except Exception as exc:  # noqa: BLE001 (pxr raises Tf.ErrorException for file-system failures)
+            raise OSError(f"USD could not write it ({' '.join(str(exc).split())[:200]})") from None
+        if not ok:
+            raise OSError("USD could not write it")
 
     return atomic_write(path, export)
 

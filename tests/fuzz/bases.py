@@ -80,6 +80,9 @@ def write_bases(folder) -> Path:
                  ["jaw", "fit", "--rig", "nlpca", "--poses", str(out / "ses.npz"), "-o", str(out / "rn.npz"),
                   "--iterations", "5"]):
         assert main(argv) == 0, argv
+    # a finished simulate run (the input of export-cache)
+    assert main(["simulate", "--model", str(out / "box.npz"), "--activations", str(out / "a.csv"), "-o",
+                 str(out / "run"), "--solver", "direct", "-q"]) == 0
     missing = [f for f in FILES if not (out / f).is_file()]
     assert not missing, missing
     return out

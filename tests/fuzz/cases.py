@@ -34,6 +34,7 @@ SIM = ("simulate", "--model", M, "--activations", "{B}/a.csv", "-o", "{C}/out", 
 SOLVE = ("solve-mocap", "--model", M, "--markers", "{B}/markers.csv", "-o", "{C}/out", "--head", "none",
          "--max-steps", "1", "--solver", "direct", "-q", "--max-seconds-per-frame", "10")
 RENDER = ("model", "render", M, "-o", "{C}/o.png", "--size", "160x160", "--no-legend")
+CACHE = ("export-cache", "{B}/run", "--model", M, "--usd", "{C}/o.usda", "--pvd", "{C}/o.pvd", "--c3d", "{C}/o.c3d")
 EXPORT = ("model", "export", M, "-o", "{C}/o.vtu", "--surfaces", "{C}/surfaces")
 FIT = ("jaw", "fit", "--rig", "3dof", "--poses", "{B}/ext.npz", "-o", "{C}/rig.npz")
 POSE = ("jaw", "pose", "--rig", "{B}/rp.npz", "--sliders", "0.5", "0", "0")
@@ -387,6 +388,7 @@ def targets() -> list[Target]:
         _model_target("jaw generate.model", ("jaw", "generate", "--model", "{C}/m.npz", "--extremes", "-o",
                                              "{C}/p.npz"), 3),
         _model_target("jaw fit-model.model", tuple(set_option(FIT_MODEL, "--model", "{C}/m.npz")), 3),
+        _model_target("export-cache.model", tuple(set_option(CACHE, "--model", "{C}/m.npz")), 3),
         _model_target("demo.FACESIM_MODEL", ("demo", "-o", "{C}/demo", "--frames", "0:0", "-q"), 4,
                       env={"FACESIM_MODEL": "{C}/m.npz"}, base_ok=False,
                       exclude=("npz:extra", "npz:uncompressed")),
@@ -455,6 +457,7 @@ def targets() -> list[Target]:
         OptionTarget("jaw generate.options", GENERATE, 3, table=GENERATE_OPTIONS),
         OptionTarget("jaw fit-model.options", FIT_MODEL, 1, table=FIT_MODEL_OPTIONS),
         OptionTarget("jaw retarget.options", RETARGET, 1, table=RETARGET_OPTIONS),
+        OptionTarget("export-cache.options", CACHE, 3, table=CACHE_OPTIONS),
         ArgvTarget("model build", (), 3, table=BUILD_ARGV),
         # output paths
         OutputTarget("simulate.output", tuple(sim), 3),
@@ -465,10 +468,19 @@ def targets() -> list[Target]:
         OutputTarget("jaw fit.output", FIT, 1, kind="file", suffix=".npz"),
         OutputTarget("jaw generate.output", GENERATE, 1, kind="file", suffix=".npz"),
         OutputTarget("jaw envelope.output", ENVELOPE, 1, kind="file", suffix=".png"),
+        OutputTarget("export-cache.usd", CACHE, 1, option="--usd", kind="file", suffix=".usda"),
+        OutputTarget("export-cache.pvd", CACHE, 1, option="--pvd", kind="file", suffix=".pvd"),
     ]
     return t
 
 
+CACHE_OPTIONS = (
+    ((("--fps", "0"),), G), ((("--fps", "-1"),), G), ((("--fps", "nan"),), G), ((("--fps", "abc"),), G),
+    ((("--fps", "24"),), V), ((("--usd", "{C}/o.txt"),), G), ((("--pvd", "{C}/o.vtu"),), G),
+    ((("--c3d", "{C}/o.csv"),), G), ((("--usd", None), ("--pvd", None), ("--c3d", None)), G),
+    ((("--usd", "{C}/o.usd"),), V), ((("--usd", "{C}/o.usdc"),), V), ((("--model", "{B}/nothing.npz"),), G),
+    ((("--model", "{M}/face_coarse.npz"),), G),   # another model than the run's
+)
 RENDER_OPTIONS = (
     ((("--size", "0x0"),), G), ((("--size", "16x16"),), V), ((("--size", "100000x1"),), G),
     ((("--size", "1x100000"),), G), ((("--size", "abc"),), G), ((("--size", "-160x-160"),), G),
@@ -481,6 +493,10 @@ RENDER_OPTIONS = (
     ((("--sheet",), ("--size", "16x16"), ("-q",)), E), ((("--no-legend", None),), V), ((("--size", "16x8192"),), E),
 )
 SIMULATE_OPTIONS = (
+    ((("--controls-from", "{B}/run"), ("--activations", None)), G),   # a simulate run, not a solve
+    ((("--controls-from", "{B}"), ("--activations", None)), G), ((("--controls-from", "{C}/nothing"),), G),
+    ((("--controls-from", "{B}/run"),), G),   # with --activations too
+    ((("--activations", None),), G),
     ((("--fps", "0"),), G), ((("--fps", "-1"),), G), ((("--fps", "nan"),), G), ((("--fps", "inf"),), G),
     ((("--fps", "1e300"),), G), ((("--fps", "x"),), G), ((("--fps", "10000"),), V), ((("--fps", "0.001"),), V),
     ((("--max-seconds-per-frame", "0"),), G), ((("--max-seconds-per-frame", "-1"),), G),
@@ -504,6 +520,10 @@ SIMULATE_OPTIONS = (
     ((("--model", "{B}/a.csv"),), G), ((("--model", "{B}/rp.npz"),), G),
 )
 SOLVE_OPTIONS = (
+    ((("--layout", "capture"),), E), ((("--layout", "model"), ("--head-markers", "head_L,head_R")), G),
+    ((("--head-markers", "nope,none,nil"),), G), ((("--head-markers", ","),), G),
+    ((("--marker-map", "{C}/nothing.csv"),), G), ((("--marker-map", "{B}/a.csv"),), G),
+    ((("--layout", "sideways"),), G), ((("--write-meshes",),), V),
     ((("--noise", "0"),), G), ((("--noise", "-1"),), G), ((("--noise", "nan"),), G), ((("--noise", "inf"),), G),
     ((("--noise", "1e30"),), E), ((("--noise", "x"),), G),
     ((("--max-steps", "0"),), E), ((("--max-steps", "-1"),), G), ((("--max-steps", "x"),), G),
