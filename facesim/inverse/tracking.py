@@ -255,13 +255,12 @@ class _Solved:
 @dataclass(frozen=True)
 class _Start:
     """The warm start a frame hands to the next frame of its chunk: its controls (full precision),
-    equilibrium ``x (n, 3)`` (None: solve it), Jacobian (None: evaluate one) and ``tangent_at``,
-    where the Jacobian's factorised tangent was taken, ``(controls, x, frame)`` (None: it has none)."""
+    equilibrium ``x (n, 3)`` (None: solve it) and Jacobian (None: evaluate one; its ``tangent_at``
+    says where its factorised tangent was assembled)."""
 
     controls: Controls
     x: np.ndarray | None = None
     jacobian: EquilibriumJacobian | None = None
-    tangent_at: tuple | None = None
 
 
 def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> tuple[_Solved, _Start]:
@@ -311,7 +310,7 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     if failed:
         return solved, start
     J = fit.jacobian
-    return solved, _Start(fit.controls, fit.x, J, J.tangent_at if J is not None and J.tangent is not None else None)
+    return solved, _Start(fit.controls, fit.x, J)
 
 
 _MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
@@ -619,12 +618,11 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
             continue
         restored += 1
         J = saved.jacobian
-        if saved.tangent_at is not None:
+        if J is not None and J.tangent_at is not None:
             if client is None:   # factorised again where it was: the same factors as the run had
-                J = dataclasses.replace(J, tangent=_tangent(local, options, saved.tangent_at),
-                                        tangent_at=saved.tangent_at)
+                J = dataclasses.replace(J, tangent=_tangent(local, options, J.tangent_at))
             else:                # a factorisation does not travel to a worker (see EquilibriumJacobian)
-                saved = dataclasses.replace(saved, tangent_at=None)
+                J = dataclasses.replace(J, tangent_at=None)
         starts.append(dataclasses.replace(saved, jacobian=J))
     # the warm start each chunk's next frame needs: the saved one before each run; all others go
     last_warm = {(first - 1) // chunk: int(frames[first - 1]) for first, _, warm in runs if warm}
@@ -749,7 +747,7 @@ def _get_controls(z, prefix: str) -> Controls:
 def _save_warm(path: Path, k: int, start: _Start) -> None:
     """Write the warm start ``start`` that frame ``k`` hands on (atomically; uncompressed, it is
     written every frame): controls, equilibrium, the Jacobian without its factorised tangent but
-    with where that was taken (see :class:`_Start`)."""
+    with where that was assembled (``EquilibriumJacobian.tangent_at``)."""
     arrays = {"frame": np.int64(k)}
     _put_controls(arrays, "c", start.controls)
     if start.x is not None:
@@ -758,8 +756,8 @@ def _save_warm(path: Path, k: int, start: _Start) -> None:
     if J is not None:
         _put_controls(arrays, "J", J.controls)
         arrays.update(J_x=J.x, J_dx=J.dx, J_dP=J.dP, J_age=np.int64(J.age))
-        if J.tangent is not None and start.tangent_at is not None:
-            controls, x, frame = start.tangent_at
+        if J.tangent is not None and J.tangent_at is not None:
+            controls, x, frame = J.tangent_at
             _put_controls(arrays, "T", controls)
             arrays.update(T_x=x, T_frame=np.int64(frame))
 
@@ -785,10 +783,10 @@ def _load_warm(path: Path, k: int, lines, space: ControlSpace, model, jaw_model)
             x = np.array(z["x"]) if "x" in z.files else None
             J = at = None
             if "J_a" in z.files:
-                J = EquilibriumJacobian(space, _get_controls(z, "J"), np.array(z["J_x"]), np.array(z["J_dx"]),
-                                        np.array(z["J_dP"]), age=int(z["J_age"]))
-                if "T_a" in z.files:
+                if "T_a" in z.files:   # where the tangent was assembled: factorised there again on resume
                     at = (_get_controls(z, "T"), np.array(z["T_x"]), int(z["T_frame"]))
+                J = EquilibriumJacobian(space, _get_controls(z, "J"), np.array(z["J_x"]), np.array(z["J_dx"]),
+                                        np.array(z["J_dP"]), age=int(z["J_age"]), tangent_at=at)
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, FacesimError):
         return None
     n3 = (model.n_nodes, 3)
@@ -800,7 +798,7 @@ def _load_warm(path: Path, k: int, lines, space: ControlSpace, model, jaw_model)
     a, jaw, _ = _written(controls, space, jaw_model)
     if _control_lines(k, a, jaw, jaw_model) != tuple(lines[:2]):
         return None
-    return _Start(controls, x, J, at)
+    return _Start(controls, x, J)
 
 
 def _stop_summary(outputs, frames) -> dict:
