@@ -358,16 +358,10 @@ def cmd_simulate(args) -> int:
 
         jaw_model = make_jaw_model(model, "posselt", model_path=args.model)
     T = None
-    from facesim.fem.plausible import check_colliders, check_jaw
-    from facesim.kinematics.jaw_models import make_jaw_model
-
-    jm = make_jaw_model(model, jaw_model)
     if args.jaw:
-        jaw_frames, T = read_jaw_csv(args.jaw, model, jm)
+        jaw_frames, T = read_jaw_csv(args.jaw, model, jaw_model)
         check_same_frames(args.jaw, jaw_frames, args.activations, frames)
-        check_jaw(model, jm, frames, T, args.jaw)
-    colliders = _colliders(args, Path(args.activations).parent)
-    check_colliders(model, colliders, frames, jm, T)
+    colliders = _colliders(args, Path(args.activations).parent)   # simulate() checks poses and colliders
     options = _simulate_options(args, model)
     info = {"model": str(args.model), "activations": str(args.activations),
             "jaw": str(args.jaw) if args.jaw else None, "collider_specs": list(args.collider)}
@@ -389,7 +383,6 @@ def _simulate_solved(args, model) -> int:
     """simulate --controls-from OUT_DIR: the frames a solve-mocap run solved, with its jaw model and
     contact set-up, in the model frame (the solve stabilised the head)."""
     from facesim.controls_io import read_replay
-    from facesim.fem.plausible import check_colliders, check_jaw
 
     given = [name for name, v in (("--activations", args.activations), ("--jaw", args.jaw),
                                   ("--jaw-model", args.jaw_model)) if v is not None]
@@ -401,9 +394,6 @@ def _simulate_solved(args, model) -> int:
     if len(colliders) != r.n_colliders:
         raise FacesimError(f"--controls-from: the run was solved with {r.n_colliders} collider(s), {len(colliders)} "
                            "given; give the solve's --collider specs again")
-    if r.jaw is not None:
-        check_jaw(model, r.jaw_model, r.frames, r.jaw, Path(args.controls_from) / "jaw.csv")
-    check_colliders(model, colliders, r.frames, r.jaw_model, r.jaw)
     if r.rebound:
         print("note: the solve bound its markers to the capture (--bind-frames); the markers written here are the "
               "model's own placement")

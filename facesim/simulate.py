@@ -345,12 +345,13 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
                                contact_stiffness=options.contact_stiffness)   # checked before anything runs
     jaw_model = make_jaw_model(model, jaw_model)
     A, frames, J = _validate(model, activations, frames, jaw, jaw_model)
-    # what no solve could balance is refused before any (facesim.fem.plausible); the CLI checks first,
-    # naming its files
+    # what no solve could balance is refused before any (facesim.fem.plausible), naming the input
+    # files the caller recorded in ``info`` (the CLI's --jaw file, its --collider specs)
     posed = J if jaw is not None else None
     if posed is not None:
-        check_jaw(model, jaw_model, frames, posed, "jaw")
-    check_colliders(model, setup.colliders, frames, jaw_model, posed, "colliders")
+        check_jaw(model, jaw_model, frames, posed, (info or {}).get("jaw") or "jaw")
+    check_colliders(model, setup.colliders, frames, jaw_model, posed,
+                    "--collider" if (info or {}).get("collider_specs") else "colliders")
     sim = None
 
     def simulation() -> Simulation:   # built on first use: a run with nothing left to do skips the setup
