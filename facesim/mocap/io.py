@@ -28,6 +28,7 @@ import re
 import struct
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -342,9 +343,9 @@ def read_c3d(path) -> MarkerData:
     path = Path(path)
     if not path.is_file():
         raise FacesimError(f"{path}: no such C3D file" if not path.exists() else f"{path}: expected a C3D file")
-    broken = _c3d_structure(path)   # ezc3d hangs or crashes on a file cut inside its sections
-    if broken:
-        raise FacesimError(f"{path}: not a readable C3D file ({broken})")
+    layout = _c3d_layout(path)   # ezc3d hangs or crashes on a file cut inside its sections
+    if isinstance(layout, str):
+        raise FacesimError(f"{path}: not a readable C3D file ({layout})")
     try:
         c = ezc3d.c3d(str(path), extract_forceplat_data=False)
     except Exception as exc:   # ezc3d raises plain RuntimeErrors for malformed files
@@ -368,7 +369,7 @@ def read_c3d(path) -> MarkerData:
     _check_unique(names, f"{path}: parameter POINT:LABELS")
     if pts.shape[2] == 0:
         raise FacesimError(f"{path}: no frames (POINT data of {len(names)} markers, 0 frames)")
-    short = _c3d_cut_short(path, pts.shape[2])
+    short = _c3d_cut_short(layout, pts.shape[2])
     if short:
         raise FacesimError(f"{path}: {short} (cut short?)")
     units = str((point.get("UNITS", {}).get("value") or ["mm"])[0]).strip().lower() or "mm"
@@ -395,12 +396,27 @@ def read_c3d(path) -> MarkerData:
     return MarkerData(names, frames, P, rate, units)
 
 
-def _c3d_structure(path: Path) -> str | None:
-    """What is wrong with the layout of the C3D file at ``path`` before ezc3d reads it (ezc3d
-    hangs or crashes the process on a file cut inside its parameter section), else None: the
-    512-byte header with the key byte 0x50, the parameter section's first block (header byte 1)
-    and its length in blocks (byte 3 of the section), and the first data block (header word 9)
-    all within the file. C3D user guide, ch. 3."""
+class _C3dLayout(NamedTuple):
+    """The layout of a C3D file read from its 512-byte header and its parameter section's first
+    bytes: the header, the processor type (1 Intel, 2 DEC: little-endian; 3 MIPS: big-endian), the
+    file size in bytes and the first data block."""
+
+    head: bytes
+    processor: int
+    size: int
+    start: int
+
+    @property
+    def order(self) -> str:
+        return ">" if self.processor == 3 else "<"
+
+
+def _c3d_layout(path: Path) -> _C3dLayout | str:
+    """The layout of the C3D file at ``path``, or what is wrong with it, before ezc3d reads it (ezc3d
+    hangs or crashes the process on a file cut inside its parameter section): the 512-byte header
+    with the key byte 0x50, the parameter section's first block (header byte 1) and its length in
+    blocks (byte 3 of the section), and the first data block (header word 9) all within the file.
+    C3D user guide, ch. 3."""
     try:
         size = path.stat().st_size
         with open(path, "rb") as f:
@@ -425,34 +441,24 @@ def _c3d_structure(path: Path) -> str | None:
     (start,) = struct.unpack((">" if processor == 3 else "<") + "H", head[16:18])
     if start < 1 or (start - 1) * 512 > size:
         return f"the data start at block {start}, beyond the file's {size} bytes (cut short?)"
-    return None
+    return _C3dLayout(head, processor, size, start)
 
 
-def _c3d_cut_short(path: Path, n_frames: int) -> str | None:
-    """What is missing if the C3D file holds less than its header announces (ezc3d reads the frames
-    that are there and says nothing), else None. From the 512-byte header (C3D user guide, ch. 3):
-    words 2-9 hold the points, analog samples per frame, first and last frame, the scale (negative:
-    float data) and the first block of the data; the processor type (Intel, DEC: little-endian, MIPS:
-    big-endian) is byte 4 of the parameter section. A header too odd to read skips the check."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(512)
-            f.seek((head[0] - 1) * 512 + 3)
-            processor = f.read(1)[0] - 83
-        size = path.stat().st_size
-        order = ">" if processor == 3 else "<"
-        n_points, n_analog, first, last = struct.unpack(order + "4H", head[2:10])
-        (start,) = struct.unpack(order + "H", head[16:18])
-        sign_byte = {1: 15, 2: 13, 3: 12}.get(processor, 15)   # of the scale factor; DEC floats are word-swapped
-        value_bytes = 4 if head[sign_byte] & 0x80 else 2
-    except (OSError, IndexError, ValueError, struct.error):
-        return None
+def _c3d_cut_short(layout: _C3dLayout, n_frames: int) -> str | None:
+    """What is missing if the C3D file of ``layout`` holds less than its header announces (ezc3d
+    reads the frames that are there and says nothing), else None. Header words 2-5 hold the
+    points, analog samples per frame, first and last frame; the scale's sign (negative: float
+    data) says the bytes per value (C3D user guide, ch. 3)."""
+    head = layout.head
+    n_points, n_analog, first, last = struct.unpack(layout.order + "4H", head[2:10])
+    sign_byte = {1: 15, 2: 13, 3: 12}[layout.processor]   # of the scale factor; DEC floats are word-swapped
+    value_bytes = 4 if head[sign_byte] & 0x80 else 2
     announced = last - first + 1 if first >= 1 and first <= last < 65535 else None   # 65535: more frames than words
     if announced is not None and announced > n_frames:
         return f"the header announces {announced} frames, the file holds {n_frames}"
-    need = (start - 1) * 512 + n_frames * (4 * n_points + n_analog) * value_bytes
-    if start >= 1 and size < need:
-        return f"{size} bytes, but {n_frames} frames of {n_points} points need {need}"
+    need = (layout.start - 1) * 512 + n_frames * (4 * n_points + n_analog) * value_bytes
+    if layout.size < need:
+        return f"{layout.size} bytes, but {n_frames} frames of {n_points} points need {need}"
     return None
 
 
