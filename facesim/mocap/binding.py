@@ -32,9 +32,19 @@ SEARCH_RADIUS = 15.0
 MIN_NORMAL_COS = 0.5
 
 
-def _normals(X, tris) -> np.ndarray:
+def triangle_normals(X, tris) -> np.ndarray:
+    """(s, 3) unit normals of the triangles ``tris (s, 3)`` at node positions ``X (n, 3)``."""
     n = np.cross(X[tris[:, 1]] - X[tris[:, 0]], X[tris[:, 2]] - X[tris[:, 0]])
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def bind_point(corners, closest, point, normal) -> tuple[np.ndarray, float]:
+    """How a marker at ``point (3,)`` is bound to the skin triangle ``corners (3, 3)`` whose point
+    ``closest (3,)`` is nearest to it (Sifakis 2005): the barycentric coordinates of ``closest``
+    (clipped to the triangle, summing to 1) and the offset along the triangle's unit ``normal``, mm."""
+    b = trimesh.triangles.points_to_barycentric(np.asarray(corners)[None], np.asarray(closest)[None])[0]
+    b = np.clip(b, 0.0, None)
+    return b / b.sum(), float((np.asarray(point) - closest) @ normal)
 
 
 def rebind_markers(model: FaceModel, neutral, radius: float = SEARCH_RADIUS,
@@ -52,7 +62,7 @@ def rebind_markers(model: FaceModel, neutral, radius: float = SEARCH_RADIUS,
     X, skin, m = model.X, model.skin, model.markers
     rest = model.marker_positions()
     centroids = X[skin].mean(axis=1)
-    normals = _normals(X, skin)
+    normals = triangle_normals(X, skin)
     tri, bary, offset = m.triangle.copy(), m.bary.copy(), m.offset.copy()
     for i in np.flatnonzero(np.isfinite(P).all(axis=1)):   # one small query per marker (tens of them)
         near = np.flatnonzero((np.linalg.norm(centroids - rest[i], axis=1) < radius)
@@ -64,10 +74,8 @@ def rebind_markers(model: FaceModel, neutral, radius: float = SEARCH_RADIUS,
             raise FacesimError(f"neutral markers: {m.names[i]} is {distance[0]:.1f} mm from the skin near its "
                                f"binding (expected <= {max_distance:g} mm); is the frame neutral and stabilised?")
         t = int(near[k[0]])
-        b = trimesh.triangles.points_to_barycentric(X[skin[t]][None], closest)[0]
-        b = np.clip(b, 0.0, None)
-        tri[i], bary[i] = t, b / b.sum()
-        offset[i] = float((P[i] - closest[0]) @ normals[t])
+        tri[i] = t
+        bary[i], offset[i] = bind_point(X[skin[t]], closest[0], P[i], normals[t])
     new = MarkerSet(names=m.names, triangle=tri.astype(m.triangle.dtype), bary=bary, offset=offset, head=m.head)
     out = model.with_(markers=new)
     moved = np.linalg.norm(out.marker_positions() - rest, axis=1)

@@ -34,7 +34,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from facesim.errors import FacesimError
+from facesim.mocap.binding import bind_point, triangle_normals
 from facesim.model import FaceModel, MarkerSet
+from facesim.se3 import so3_exp
 
 #: Fraction of the markers each ICP step fits (the rest, farthest from the skin, are trimmed).
 KEEP = 0.8
@@ -112,8 +114,7 @@ class _Skin:
     def of(model: FaceModel, spacing: float = 2.5, most: int = 50_000) -> "_Skin":
         X, tris = model.X, model.skin
         mesh = trimesh.Trimesh(X, tris, process=False)
-        n = np.cross(X[tris[:, 1]] - X[tris[:, 0]], X[tris[:, 2]] - X[tris[:, 0]])
-        normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        normals = triangle_normals(X, tris)
         count = int(np.clip(mesh.area / spacing ** 2, 2 * len(tris), most))
         points, tri = trimesh.sample.sample_surface(mesh, count, seed=0)
         points = np.r_[points, X[tris].mean(axis=1)]
@@ -177,7 +178,7 @@ def _rotation_starts(Us, Uq, tilt_deg: float = 20.0) -> np.ndarray:
     are often ~20 degrees off the face's: ICP from a right translation converges from 20+ degrees),
     and onto the skin's own principal axes ``Us`` (for shapes that are not faces); and first the
     identity (a capture already oriented as the model)."""
-    tilts = [np.eye(3)] + [_rotvec(sign * np.radians(tilt_deg) * np.eye(3)[a]) for a in range(3) for sign in (1, -1)]
+    tilts = [np.eye(3)] + [so3_exp(sign * np.radians(tilt_deg) * np.eye(3)[a]) for a in range(3) for sign in (1, -1)]
     out = [np.eye(3)]   # the capture's own orientation first: it wins the ties of a symmetric shape
     for S in _axis_rotations():
         for frame, dR in [(np.eye(3), d) for d in tilts] + [(Us, np.eye(3))]:
@@ -186,16 +187,6 @@ def _rotation_starts(Us, Uq, tilt_deg: float = 20.0) -> np.ndarray:
                 R0 = frame @ S @ np.diag([1.0, 1.0, -1.0]) @ Uq.T
             out.append(dR @ R0)
     return np.array(out)
-
-
-def _rotvec(w) -> np.ndarray:
-    """(3, 3) rotation of the rotation vector ``w (3,)`` (Rodrigues)."""
-    angle = float(np.linalg.norm(w))
-    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if angle < 1e-12:
-        return np.eye(3) + K
-    K /= angle
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
 
 
 def _icp(P, R, t, s, closest, keep: float, steps: int, tol: float = 1e-4):
@@ -230,7 +221,7 @@ def _icp(P, R, t, s, closest, keep: float, steps: int, tol: float = 1e-4):
         H = Jn.T @ Jn + lam2 * np.einsum("ijk,ijl->kl", J, J) + 1e-9 * np.eye(m)
         g = Jn.T @ np.einsum("ij,ij->i", r, nk) + lam2 * np.einsum("ijk,ij->k", J, r)
         x = np.linalg.solve(H, -g)
-        dR = _rotvec(x[:3])
+        dR = so3_exp(x[:3])
         # y' = c + dR (y - c) + dt
         R = dR @ R
         t = c + dR @ (t - c) + x[3:6]
@@ -411,7 +402,7 @@ def bind_layout(model: FaceModel, names, registered, head_names=()) -> tuple[Mar
     for i in np.flatnonzero(seen):
         name, is_head, t = names[i], names[i] in head_names, int(tri[i])
         n = skin.normals[t]
-        offset = float((P[i] - q[i]) @ n)
+        b, offset = bind_point(skin.X[skin.tris[t]], q[i], P[i], n)
         limit = MAX_HEAD_DISTANCE if is_head else MAX_SKIN_DISTANCE
         if d[i] > limit:
             rejected[name] = f"{d[i]:.1f} mm from the skin (limit {limit:g} mm for a {'head' if is_head else 'skin'} marker)"
@@ -422,9 +413,6 @@ def bind_layout(model: FaceModel, names, registered, head_names=()) -> tuple[Mar
         if n[2] < MIN_FRONT and not is_head:
             rejected[name] = "on the back of the head (its skin faces away from the face)"
             continue
-        b = trimesh.triangles.points_to_barycentric(skin.X[skin.tris[t]][None], q[i][None])[0]
-        b = np.clip(b, 0.0, None)
-        b /= b.sum()
         keep.append(i)
         tris.append(t), barys.append(b), offsets.append(offset), heads.append(is_head)
         rows.append({"name": name, "triangle": t, "b0": b[0], "b1": b[1], "b2": b[2], "offset_mm": offset,
