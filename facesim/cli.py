@@ -451,7 +451,7 @@ def cmd_solve_mocap(args) -> int:
     from facesim.viz.plots import plot_track
 
     _warn_ignored(args, [("loss_scale", args.loss == "l2", "with --loss l2"),
-                         ("head_smoothing", args.head == "none", "with --head none"),
+                         ("head_smoothing", args.head != "procrustes", f"with --head {args.head}"),
                          ("color_by", not args.render, "without --render"),
                          ("contact_stiffness", args.no_contact and not args.collider,
                           "with --no-contact and no --collider")])
@@ -935,9 +935,12 @@ def build_parser() -> argparse.ArgumentParser:
                             "rigidity constraints as penalties in the progressive schedule (Sifakis 2005 section 8; "
                             "same accuracy on the demo clip, ~20-40%% slower); posselt alone is the model's own Posselt rig "
                             "(M_posselt.npz beside the model, or the shipped rig of the same TMJ) (default: %(default)s)")
-    solve.add_argument("--head", choices=("procrustes", "none"), default="procrustes",
-                       help="stabilise the head with the head markers, or take the capture as already stabilised "
-                            "(default: %(default)s)")
+    solve.add_argument("--head", choices=("procrustes", "none", "solve"), default="procrustes",
+                       help="procrustes: stabilise the head with the head markers first; none: the capture is "
+                            "already in the model's head frame; solve: the skull's frame solved with the other "
+                            "controls per frame (12 affine coefficients under the rigidity penalty, Sifakis 2005 "
+                            "section 8), for captures whose head markers are few or noisy: the poses go to "
+                            "OUT/head.csv, everything else stays in the model's head frame (default: %(default)s)")
     solve.add_argument("--head-smoothing", type=_count(0, 10001), default=0, metavar="FRAMES",
                        help="smooth the head stabilisation over this many frames (odd, >= 3; 0: off): the few head "
                             "markers' noise otherwise shakes the whole face; keep the window shorter than the "

@@ -149,6 +149,26 @@ def read_solution(out_dir, model) -> tuple[np.ndarray, list[Controls]]:
     return np.array(frames, dtype=np.int64), controls
 
 
+def read_head_poses(out_dir) -> dict[int, np.ndarray]:
+    """The head poses ``OUT/head.csv`` of a ``solve-mocap --head solve`` run holds: frame -> 4x4
+    rigid transform (the model's head frame -> the capture's); empty when the run did not solve
+    the head."""
+    path = Path(out_dir) / "head.csv"
+    if not path.is_file():
+        return {}
+    header, H = read_log(path)
+    if len(header) < 13 or header[1:13] != ["r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22",
+                                             "tx", "ty", "tz"]:
+        raise FacesimError(f"{path}: columns {','.join(header[1:])}; expected 'frame,r00,...,r22,tx,ty,tz,strain' "
+                           "as solve-mocap --head solve writes")
+    out = {}
+    for row in H:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = row[1:10].reshape(3, 3), row[10:13]
+        out[int(row[0])] = T
+    return out
+
+
 @dataclass(frozen=True)
 class Replay:
     """The controls of a ``solve-mocap`` folder as ``simulate`` takes them (:func:`read_replay`):

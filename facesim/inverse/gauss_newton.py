@@ -58,6 +58,7 @@ from facesim.budget import TIME_LIMIT, check_seconds, expired, time_budget
 from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.fem.linear import single_blas_thread
+from facesim.inverse.head_frame import HeadFrame
 from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, equilibrium_jacobian, near_equilibrium
 
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
@@ -179,14 +180,18 @@ class Fit:
     report: FitReport
     jacobian: EquilibriumJacobian | None = None
     equilibrium: bool = True
+    head_frame: np.ndarray | None = None   # with a solved head frame: its 4x4 affine (model head frame -> world)
 
 
 class _Bounds:
-    """The penalty B(c) and its derivatives: activations outside [0, 1], the jaw model's penalty."""
+    """The penalty B(c) and its derivatives: activations outside [0, 1], the jaw model's penalty
+    and, with a solved head frame (``head``, a :class:`~facesim.inverse.head_frame.HeadFrame`
+    whose 12 coefficients follow the control space's unknowns), its rigidity penalty."""
 
-    def __init__(self, space: ControlSpace, jaw_model):
+    def __init__(self, space: ControlSpace, jaw_model, head=None):
         self.space = space
         self.jaw_model = jaw_model if space.n_jaw else None
+        self.head = head
         self._slices = space.slices()
         self._diag = np.arange(len(space.muscles))   # activations come first
 
@@ -204,6 +209,12 @@ class _Bounds:
             v += float(pv)
             g[sj] += pg
             H[sj, sj] += ph
+        if self.head is not None:
+            sf = slice(self.space.size, n)
+            pv, pg, ph = self.head.penalty(c[sf])
+            v += float(pv)
+            g[sf] += pg
+            H[sf, sf] += ph
         return v, g, H
 
     def violation(self, c) -> float:
@@ -261,10 +272,6 @@ def schedule_penalty(r, J, c, bounds: _Bounds, options: FitOptions, w=None):
         mu *= options.growth
 
 
-def _residual(model, x, targets, keep) -> np.ndarray:
-    return (model.marker_positions(x)[keep] - targets[keep]).ravel()
-
-
 def _reusable(J: EquilibriumJacobian | None, space: ControlSpace, c, x) -> bool:
     """Whether ``J`` was taken (or secant-updated) at exactly this control vector and equilibrium."""
     if J is None or J.space != space or J.x.shape != x.shape:
@@ -274,7 +281,8 @@ def _reusable(J: EquilibriumJacobian | None, space: ControlSpace, c, x) -> bool:
 
 def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
               options: FitOptions | None = None, weights=None, extra_terms=(),
-              jacobian: EquilibriumJacobian | None = None, screen=None, frame: float = 0.0) -> Fit:
+              jacobian: EquilibriumJacobian | None = None, screen=None, frame: float = 0.0,
+              head_frame=None) -> Fit:
     """Fit one frame: the controls (in ``space``, default all activations and the jaw model's
     parameters) whose equilibrium puts the model's markers on ``targets (r, 3)`` mm (NaN rows
     are missing markers), starting from ``controls`` and its equilibrium ``x0`` (solved if None).
@@ -288,6 +296,11 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     ``frame``: the frame number scripted colliders of the simulator's contact set-up are posed at.
     Every equilibrium and Jacobian of the fit includes the simulator's contact terms
     (:meth:`~facesim.fem.equilibrium.FaceSimulator.contact_terms`) and ``extra_terms``.
+    ``head_frame``: a 4x4 affine transform (the model's head frame -> the targets' frame) to start
+    from: the skull's frame is then solved with the other controls, 12 affine coefficients under
+    the rigidity penalty (:mod:`facesim.inverse.head_frame`); the targets are in the capture's
+    frame, the equilibrium in the head frame, and ``Fit.head_frame`` / ``Fit.markers`` are the
+    solved frame and the markers it puts in the capture's frame.
 
     Returns a :class:`Fit` with the final controls, positions, marker positions, the report (with
     ``stop_reason``, one of :data:`STOP_REASONS`: ``"converged"`` by the stopping rule,
@@ -298,14 +311,15 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     options = options or FitOptions()
     with single_blas_thread(), time_budget(options.max_seconds):   # vector-sized BLAS work: threads contend
         return _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
-                          jacobian, screen, frame)
+                          jacobian, screen, frame, head_frame)
 
 
 class _OutOfTime(Exception):
     """The fit's wall-clock budget ran out (raised between equilibria, caught by the fit)."""
 
 
-def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian, screen, frame) -> Fit:
+def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian, screen, frame,
+               head_frame) -> Fit:
     t0 = time.perf_counter()
     model = sim.model
     targets = np.asarray(targets, dtype=np.float64)
@@ -316,7 +330,9 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         raise FacesimError(f"targets: only {int(keep.sum())} markers present; need at least 3")
     w = np.ones(model.n_markers) if weights is None else np.asarray(weights, dtype=np.float64)
     space = space or ControlSpace.of(sim)
-    bounds = _Bounds(space, sim.jaw_model)
+    nc = space.size
+    head = None if head_frame is None else HeadFrame.of(model)
+    bounds = _Bounds(space, sim.jaw_model, head)
     rep = FitReport()
     clock = rep.timing
 
@@ -364,18 +380,30 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         return eq.x if eq.converged else None
 
     def motion(x, start):
-        """Marker motion ``(k,)`` of the kept coordinates from the marker positions ``start``."""
+        """Marker motion ``(k,)`` of the kept coordinates from the marker positions ``start`` (head frame)."""
         return (model.marker_positions(x) - start).ravel()[rows]
 
+    def markers(x, c):
+        """Marker positions ``(r, 3)`` in the targets' frame: moved by the head frame when it is solved."""
+        P = model.marker_positions(x)
+        return P if head is None else head.apply(P, c[nc:])
+
+    def marker_jacobian(J, x, c):
+        """``(3r, len(c))`` derivative of :func:`markers` from the equilibrium's ``J``."""
+        return J.dP if head is None else head.jacobian(model.marker_positions(x), c[nc:], J.dP)
+
+    def ctrl(c) -> Controls:
+        return space.apply(base, c[:nc])
+
     def objective(c, x, mu):
-        r = _residual(model, x, targets, keep)
+        r = (markers(x, c)[keep] - targets[keep]).ravel()
         return 0.5 * float(r @ (w3 * r)) + mu * bounds.value_grad_hess(c)[0]
 
     def exact_jacobian(c, x):
         if expired():
             raise _OutOfTime
         t = time.perf_counter()
-        J = equilibrium_jacobian(sim, space.apply(base, c), x, space, extra_terms=extra_terms,
+        J = equilibrium_jacobian(sim, ctrl(c), x, space, extra_terms=extra_terms,
                                  linear_solver=options.linear_solver, rtol=options.jacobian_rtol, frame=frame)
         rep.jacobians += 1
         rep.linear_solves += len(J.linear_iterations)
@@ -385,8 +413,8 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     def linear_step(J, c, x):
         """The schedule's step, its weight and the decrease the linear model predicts for it."""
         t = time.perf_counter()
-        r = _residual(model, x, targets, keep)
-        Jr = J.dP[rows]
+        r = (markers(x, c)[keep] - targets[keep]).ravel()
+        Jr = marker_jacobian(J, x, c)[rows]
         dc, mu, nested = schedule_penalty(r, Jr, c, bounds, options, w3)
         rep.schedule_steps += nested
         F = objective(c, x, mu)
@@ -408,17 +436,22 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         rep.error = rep.error or ("the time budget ran out before the starting equilibrium was found" if out_of_time
                                   else "the starting controls have no converged equilibrium")
         x = sim.attached_positions(controls, x0 if x0 is not None and np.isfinite(x0).all() else None)
-        P = model.marker_positions(x)
+        f0 = np.zeros(0) if head is None else head.coefficients(head_frame)
+        P = markers(x, np.r_[np.zeros(nc), f0])
         rep.marker_rms = float(np.sqrt(np.mean(np.sum((P[keep] - targets[keep]) ** 2, axis=1))))
         rep.seconds = time.perf_counter() - t0
-        return Fit(controls, x, P, rep, None, equilibrium=False)
+        return Fit(controls, x, P, rep, None, equilibrium=False,
+                   head_frame=None if head is None else np.asarray(head_frame, dtype=np.float64))
     c = space.vector(controls)
+    J = jacobian if _reusable(jacobian, space, c, x) else None
+    if head is not None:   # the frame's coefficients follow the control space's unknowns
+        c = np.r_[c, head.coefficients(head_frame)]
     base = controls
     mu = 0.0
     F = objective(c, x, mu)
     rep.objective.append(F)
-    P = model.marker_positions(x)
-    J = jacobian if _reusable(jacobian, space, c, x) else None
+    P = markers(x, c)                  # in the targets' frame
+    Ph = model.marker_positions(x)     # in the head frame (the equilibrium's Jacobian's)
 
     def small(dc, F, predicted) -> bool:
         """The stopping rule: the next step would change the objective (or the controls) too little."""
@@ -432,7 +465,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 J = exact_jacobian(c, x)
             dc, mu, F, predicted, slope = linear_step(J, c, x)
             if screen is not None:
-                dropped = [j for j in screen(P + (J.dP @ dc).reshape(-1, 3)) if keep[j]]
+                dropped = [j for j in screen(P + (marker_jacobian(J, x, c) @ dc).reshape(-1, 3)) if keep[j]]
                 screen = None
                 if dropped and keep.sum() - len(dropped) >= 3:
                     rep.screened = sorted(dropped)
@@ -446,15 +479,16 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 break
             # the full step first, its equilibrium warm-started from the first-order prediction
             t = time.perf_counter()
-            x1 = solve(space.apply(base, c + dc), J.predict(dc), J.tangent)
+            x1 = solve(ctrl(c + dc), J.predict(dc[:nc]), J.tangent)
             F1 = math.inf if x1 is None else objective(c + dc, x1, mu)
             clock["equilibria"] += time.perf_counter() - t
             rep.ratios.append((F - F1) / predicted)
             if options.line_search == "ratio" and F - F1 >= options.accept_ratio * predicted:
                 rep.full_steps += 1
                 t = time.perf_counter()
-                alpha, F_new, x_new = _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options,
-                                              (J.dP @ dc)[rows], functools.partial(motion, start=P), w3, J.tangent)
+                alpha, F_new, x_new = _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options,
+                                              (J.dP @ dc[:nc])[rows], functools.partial(motion, start=Ph), w3,
+                                              J.tangent)
                 clock["line_search"] += time.perf_counter() - t
             elif J.age > 0:   # the model of an updated Jacobian failed: evaluate it here and step again
                 J = None
@@ -467,14 +501,14 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                     # the full step failed: one backtracking trial at the minimum of the parabola through
                     # F(0), F'(0) and F(1), kept on sufficient (Armijo) decrease
                     short = min(max(-slope / (2.0 * (F1 - F - slope)), 0.1), 0.9)
-                    xs = solve(space.apply(base, c + short * dc), J.predict(short * dc), J.tangent)
+                    xs = solve(ctrl(c + short * dc), J.predict(short * dc[:nc]), J.tangent)
                     Fs = math.inf if xs is None else objective(c + short * dc, xs, mu)
                     cache[short] = (Fs, xs)
                     if Fs <= F + ARMIJO * short * slope:
                         alpha, F_new, x_new = short, Fs, xs
                 if alpha is None:   # golden section: over [0, 1] after a failed full step, else [0, max_step]
                     hi = 1.0 if options.line_search == "ratio" else options.max_step
-                    alpha, F_new, x_new = _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache,
+                    alpha, F_new, x_new = _golden_section(solve, objective, ctrl, c, dc, J, nc, mu, options, cache,
                                                           hi)
                 clock["line_search"] += time.perf_counter() - t
             rep.gn_steps += 1
@@ -484,15 +518,16 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 break
             t = time.perf_counter()
             step = alpha * dc
-            P_new = model.marker_positions(x_new)
-            moved = (P_new - P).ravel()
-            linear = J.dP @ step
+            Ph_new = model.marker_positions(x_new)
+            moved = (Ph_new - Ph).ravel()   # the equilibrium's response, in the head frame
+            linear = J.dP @ step[:nc]
             mismatch = float(np.linalg.norm(moved - linear)) / max(float(np.linalg.norm(linear)), 1e-300)
-            J = J.secant_update(step, x_new, moved, space.apply(base, c + step))
+            J = J.secant_update(step[:nc], x_new, moved, ctrl(c + step))
             rep.secant_updates += 1
             clock["jacobian"] += time.perf_counter() - t
             improvement = (F - F_new) / max(F, 1e-300)
-            c, x, F, P = c + step, x_new, F_new, P_new
+            c, x, F, Ph = c + step, x_new, F_new, Ph_new
+            P = markers(x, c)
             rep.objective.append(F)
             if improvement < options.tolerance or np.abs(step).max() < options.step_tolerance:
                 stop = "converged"
@@ -508,22 +543,23 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             if small(dc, F_next, predicted):
                 stop = "converged"
     rep.stop_reason = stop
-    final = space.apply(base, c)
+    final = ctrl(c)
     rk = (P[keep] - targets[keep])
     rep.marker_rms = float(np.sqrt(np.mean(np.sum(rk ** 2, axis=1))))
     rep.worst_violation = bounds.violation(c)
     rep.penalty_weight = mu
     rep.seconds = time.perf_counter() - t0
-    return Fit(final, x, P, rep, J)
+    return Fit(final, x, P, rep, J, head_frame=None if head is None else head.matrix(c[nc:]))
 
 
-def _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options, linear, moved, w, tangent):
+def _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options, linear, moved, w, tangent):
     """Lengthen a kept full step where Gauss-Newton undershoots (muscles stiffen as they shorten,
     flesh against bone): the markers moved only a fraction ``phi(alpha)`` of the predicted motion
     ``linear = J dc`` (kept rows) along it. The step minimises ``|r + phi J dc|`` at ``phi = 1``, so
     ``phi(alpha) = 1`` is solved by secant steps (at most ``EXTEND_TRIALS`` more equilibria, each
     warm-started by extrapolating the last two), kept while the objective falls.
-    ``moved(x) (k,)``: marker motion from the start. Returns ``(alpha, F, x)``."""
+    ``moved(x) (k,)``: marker motion from the start; ``ctrl(c)``: the controls of the unknowns
+    ``c``. Returns ``(alpha, F, x)``."""
     norm = max(float(linear @ (w * linear)), 1e-300)
     path = [(0.0, 0.0, x), (1.0, float(linear @ (w * moved(x1))) / norm, x1)]
     best = (1.0, F1, x1)
@@ -534,7 +570,7 @@ def _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options, linear
         a2 = min(a1 + (1.0 - p1) * (a1 - a0) / (p1 - p0), options.max_step)
         if a2 <= a1 * EXTRAPOLATE_ABOVE:
             break
-        x2 = solve(space.apply(base, c + a2 * dc), xa1 + (a2 - a1) / (a1 - a0) * (xa1 - xa0), tangent)
+        x2 = solve(ctrl(c + a2 * dc), xa1 + (a2 - a1) / (a1 - a0) * (xa1 - xa0), tangent)
         F2 = math.inf if x2 is None else objective(c + a2 * dc, x2, mu)
         if F2 >= best[1]:
             break
@@ -543,11 +579,12 @@ def _extend(solve, objective, space, base, c, dc, x, x1, F1, mu, options, linear
     return best
 
 
-def _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache, hi):
+def _golden_section(solve, objective, ctrl, c, dc, J, nc, mu, options, cache, hi):
     """Golden-section search of ``F(c + alpha dc)`` on ``[0, hi]`` down to a bracket of
     ``golden_tolerance * hi``; ``cache`` maps the step lengths already solved to ``(F, x)``. Each
     trial equilibrium is warm-started from the interpolation of the bracketing ones (the
-    first-order prediction beyond the last). Returns ``(alpha, F, x)`` of the best point."""
+    first-order prediction of ``J`` for the first ``nc`` unknowns beyond the last).
+    Returns ``(alpha, F, x)`` of the best point."""
 
     def at(alpha):
         if alpha in cache:
@@ -556,11 +593,11 @@ def _golden_section(solve, objective, space, base, c, dc, J, mu, options, cache,
         lo = max((s for s in done if s < alpha), default=0.0)
         hi = min((s for s in done if s > alpha), default=None)
         if hi is None:
-            warm = J.predict(alpha * dc)
+            warm = J.predict(alpha * dc[:nc])
         else:
             t = (alpha - lo) / (hi - lo)
             warm = (1 - t) * cache[lo][1] + t * cache[hi][1]
-        xa = solve(space.apply(base, c + alpha * dc), warm, J.tangent)
+        xa = solve(ctrl(c + alpha * dc), warm, J.tangent)
         cache[alpha] = (math.inf, None) if xa is None else (objective(c + alpha * dc, xa, mu), xa)
         return cache[alpha][0]
 

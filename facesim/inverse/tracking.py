@@ -89,6 +89,7 @@ from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
+from facesim.inverse.head_frame import HEAD_COLUMNS, HeadFrame
 from facesim.fem.linear import make_linear_solver, single_blas_thread
 from facesim.fem.newton import Problem
 from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, default_jacobian_solver
@@ -98,10 +99,12 @@ from facesim.mocap.stabilise import check_window, stabilise
 from facesim.runfolder import UNRECORDED, RunFolder, describe, fingerprint, finish, parts
 
 LOSSES = ("l2", "huber", "cauchy")
+HEAD_MODES = ("procrustes", "none", "solve")
 LOG_COLUMNS = ("frame", "converged", "stop_reason", "gn_steps", "equilibria", "newton_iterations", "linear_solves",
                "marker_rms", "worst_violation", "markers_used", "outliers", "fits", "penetration_mm",
                "lip_penetration_mm", "teeth_penetration_mm", "seconds", "error")
 LOGS = ("activations", "jaw", "residuals", "frames")
+HEAD_LOG = "head"   # the fifth log, of a run that solves the head frame (``head="solve"``)
 CHUNKS = "chunks"
 STATE = "state"
 
@@ -109,7 +112,9 @@ STATE = "state"
 @dataclass(frozen=True)
 class TrackOptions:
     """fit : per-frame :class:`FitOptions`; head : ``"procrustes"`` (stabilise with the head
-    markers) or ``"none"`` (the capture is already in the model's head frame); outlier_factor,
+    markers), ``"none"`` (the capture is already in the model's head frame) or ``"solve"`` (the
+    skull's affine frame solved with the other controls under the rigidity penalty, Sifakis 2005
+    section 8: :mod:`facesim.inverse.head_frame`); outlier_factor,
     outlier_floor (mm) : outlier test; robust : refit frames without their outliers; loss :
     ``"l2"``, ``"huber"`` or ``"cauchy"`` on each marker's distance; loss_scale : its scale, mm
     (None: 3x ``fit.noise``); irls_steps : most reweighted passes of a robust loss; chunk_size :
@@ -131,8 +136,8 @@ class TrackOptions:
     write_meshes: bool = False
 
     def __post_init__(self):
-        if self.head not in ("procrustes", "none"):
-            raise FacesimError(f"head: expected 'procrustes' or 'none', got {self.head!r}")
+        if self.head not in HEAD_MODES:
+            raise FacesimError(f"head: expected one of {', '.join(HEAD_MODES)}, got {self.head!r}")
         if self.loss not in LOSSES:
             raise FacesimError(f"loss: expected one of {', '.join(LOSSES)}, got {self.loss!r}")
         if self.loss_scale is not None and not self.loss_scale > 0:
@@ -165,18 +170,21 @@ def loss_weights(r, loss: str, scale: float) -> np.ndarray:
 
 
 def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
-                options: TrackOptions | None = None, jacobian=None, frame: float = 0.0) -> tuple[Fit, list[int], list[Fit]]:
+                options: TrackOptions | None = None, jacobian=None, frame: float = 0.0,
+                head_frame=None) -> tuple[Fit, list[int], list[Fit]]:
     """One frame as the tracker fits it: ``targets (r, 3)`` mm (NaN missing) under ``options.loss``
     (reweighted passes of :func:`fit_frame` from ``controls`` / ``x0``), the outlier test and, with
     ``options.robust``, the refit without the outliers. Returns the final fit, the outliers'
     marker indices and every fit made (for the frame's solver counts). ``jacobian``: the previous
     frame's ``Fit.jacobian`` (reused by :func:`fit_frame` while it stays accurate; each pass hands
     its own on to the next). ``frame``: the frame number the simulator's scripted colliders are
-    posed at."""
-    return _fit_markers(sim, targets, controls, x0, space, options or TrackOptions(), jacobian, frame)
+    posed at. ``head_frame``: the head frame to start from when it is solved (4x4 affine, the
+    model's head frame -> the capture's; :func:`~facesim.inverse.gauss_newton.fit_frame`), each
+    pass starting from the last one's."""
+    return _fit_markers(sim, targets, controls, x0, space, options or TrackOptions(), jacobian, frame, head_frame)
 
 
-def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame):
+def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame, head_frame=None):
     """:func:`fit_markers` (the module doc)."""
     fits: list[Fit] = []
     targets = np.asarray(targets, dtype=np.float64)
@@ -185,14 +193,14 @@ def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacob
     screen = functools.partial(_outliers, target=targets, options=options) \
         if options.robust and jacobian is not None else None
 
-    def fit_from(target, c, x, J, weights=None, screen=None):
+    def fit_from(target, c, x, J, weights=None, screen=None, head=None):
         fit = fit_frame(sim, target, c, x, space, options.fit, weights=weights, jacobian=J, screen=screen,
-                        frame=frame)
+                        frame=frame, head_frame=fits[-1].head_frame if fits else head)
         fits.append(fit)
         return fit
 
     def solve(target, c, x, J, screen=None):
-        fit = fit_from(target, c, x, J, screen=screen)
+        fit = fit_from(target, c, x, J, screen=screen, head=head_frame)
         w = np.ones(len(target))
         for _ in range(options.irls_steps if options.loss != "l2" else 0):
             w_new = loss_weights(np.linalg.norm(fit.markers - target, axis=1), options.loss, options.scale)
@@ -261,6 +269,7 @@ class _Start:
     controls: Controls
     x: np.ndarray | None = None
     jacobian: EquilibriumJacobian | None = None
+    head_frame: np.ndarray | None = None   # the solved head frame (4x4 affine) with head="solve"
 
 
 def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> tuple[_Solved, _Start]:
@@ -274,13 +283,18 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     saved warm start."""
     model = sim.model
     controls, x, jacobian = start.controls, start.x, start.jacobian
+    head = None
+    if options.head == "solve":   # from the previous frame's head frame, or one found from this frame's markers
+        head = start.head_frame if start.head_frame is not None else initial_head_frame(model, target)
     try:
-        fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k)
+        fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k, head)
     except SolverError as exc:
         attached = sim.attached_positions(controls, x)
         P = model.marker_positions(attached)
+        if head is not None:
+            P = P @ head[:3, :3].T + head[:3, 3]
         rep = FitReport(stop_reason="equilibrium_failed", error=" ".join(str(exc).split()))
-        fit, outliers, fits = Fit(controls, attached, P, rep, None, equilibrium=False), [], []
+        fit, outliers, fits = Fit(controls, attached, P, rep, None, equilibrium=False, head_frame=head), [], []
     rep = fit.report
     r = np.linalg.norm(fit.markers - target, axis=1)
     if not np.isfinite(rep.marker_rms):
@@ -299,6 +313,8 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
                used, len(outliers), len(fits), *(_fmt(measures[c]) for c in _MEASURES), f"{total['seconds']:.3f}",
                rep.error]),
     )
+    if head is not None:
+        lines += (_head_line(k, model, fit.head_frame),)
     failed = rep.stop_reason == "equilibrium_failed" or not fit.equilibrium
     files = None
     if options.write_meshes:
@@ -310,7 +326,29 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     if failed:
         return solved, start
     J = fit.jacobian
-    return solved, _Start(fit.controls, fit.x, J)
+    return solved, _Start(fit.controls, fit.x, J, fit.head_frame)
+
+
+def initial_head_frame(model, target) -> np.ndarray:
+    """A first head frame (4x4, the model's head frame -> the capture's) for a frame with no
+    previous one: the rigid fit of the model's rest head markers onto the capture's where at least
+    three are present, else of all present markers (the expression then biases it, and the fit
+    corrects it)."""
+    from facesim.se3 import rigid_fit
+
+    target = np.asarray(target, dtype=np.float64)
+    rest = model.marker_positions()
+    ok = np.isfinite(target).all(axis=1)
+    use = ok & model.markers.head if (ok & model.markers.head).sum() >= 3 else ok
+    return rigid_fit(rest[use], target[use])
+
+
+def _head_line(k: int, model, T) -> str:
+    """Frame ``k``'s line of ``head.csv``: the rigid head pose nearest the solved frame ``T`` and
+    the frame's strain (:data:`~facesim.inverse.head_frame.HEAD_COLUMNS`)."""
+    hf = HeadFrame.of(model)
+    R, strain = hf.rigid(hf.coefficients(T))
+    return csv_line([k, *(f"{v:.9g}" for v in R[:3, :3].ravel()), *(f"{v:.6f}" for v in R[:3, 3]), f"{strain:.3e}"])
 
 
 _MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
@@ -391,7 +429,8 @@ class _Outputs:
     def __init__(self, out: Path, headers: dict[str, list[str]], frames, resume: bool):
         self.out = out
         self.frames = [int(k) for k in frames]
-        self.headers = {name: csv_line(headers[name]) for name in LOGS}
+        self.names = tuple(headers)   # LOGS, and HEAD_LOG when the head is solved; a frame's lines in this order
+        self.headers = {name: csv_line(headers[name]) for name in self.names}
         self.done: dict[int, tuple[str, ...]] = {}
         if resume:
             for folder in (out / CHUNKS, out):   # the merged files' lines win
@@ -411,7 +450,7 @@ class _Outputs:
 
     def _read(self, folder: Path) -> dict[int, tuple[str, ...]]:
         """Frames with a complete line in all four logs of ``folder`` (matching headers)."""
-        rows = [read_lines(folder / f"{name}.csv", self.headers[name]) for name in LOGS]
+        rows = [read_lines(folder / f"{name}.csv", self.headers[name]) for name in self.names]
         if not all(rows):
             return {}
         common = set.intersection(*(set(r) for r in rows))
@@ -419,11 +458,10 @@ class _Outputs:
 
     def _open(self, folder: Path, frames) -> dict[str, FrameLog]:
         return {name: FrameLog(folder / f"{name}.csv", self.headers[name], (self.done[k][j] for k in frames))
-                for j, name in enumerate(LOGS)}
+                for j, name in enumerate(self.names)}
 
-    @staticmethod
-    def _write(logs: dict[str, FrameLog], lines) -> None:
-        for name, ln in zip(LOGS, lines):
+    def _write(self, logs: dict[str, FrameLog], lines) -> None:
+        for name, ln in zip(self.names, lines):
             logs[name].add(ln)
 
     def add(self, i: int, lines) -> None:
@@ -457,6 +495,15 @@ class _Outputs:
         a = np.array([float(v) for v in next(csv.reader([self.done[k][0]]))[1:]])
         q = np.array([float(v) for v in next(csv.reader([self.done[k][1]]))[1:]])
         return Controls(a, jaw=q if space.n_jaw else None)
+
+    def head_frame(self, k: int) -> np.ndarray | None:
+        """The head pose written for frame ``k`` (4x4; None when the run does not solve the head)."""
+        if HEAD_LOG not in self.names:
+            return None
+        v = np.array([float(v) for v in next(csv.reader([self.done[k][self.names.index(HEAD_LOG)]]))[1:13]])
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = v[:9].reshape(3, 3), v[9:]
+        return T
 
 
 # ------------------------------------------------------------------ sequences
@@ -530,7 +577,7 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     if neutral is not None:
         bound, rebinding = bind_neutral(local, neutral, options.head)
     if options.head == "procrustes":
-        P, _ = stabilise(model, P, options.head_smoothing)
+        P, _ = stabilise(model, P, options.head_smoothing)   # with "solve", the capture stays as it is
     if rebinding is not None:   # after stabilising: the head frame is the model's own rest head markers
         local = bound
     n_workers = len(client.scheduler_info()["workers"]) if client is not None else 1
@@ -562,12 +609,12 @@ def _recorded_chunk(record: dict | None) -> int | None:
 
 
 def _holds_a_run(out: Path) -> bool:
-    return any((folder / f"{name}.csv").exists() for folder in (out, out / CHUNKS) for name in LOGS)
+    return any((folder / f"{name}.csv").exists() for folder in (out, out / CHUNKS) for name in (*LOGS, HEAD_LOG))
 
 
 def _clear(out: Path) -> None:
     """Remove what a run writes (and nothing else) from the folder ``out``."""
-    for name in LOGS:
+    for name in (*LOGS, HEAD_LOG):
         (out / f"{name}.csv").unlink(missing_ok=True)
     (out / "report.json").unlink(missing_ok=True)
     shutil.rmtree(out / CHUNKS, ignore_errors=True)
@@ -588,6 +635,8 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
     jaw_names = list(local.jaw_model.param_names)
     headers = {"activations": ["frame", *model.muscles.names], "jaw": ["frame", *jaw_names],
                "residuals": ["frame", "rms", *model.markers.names], "frames": list(LOG_COLUMNS)}
+    if options.head == "solve":
+        headers[HEAD_LOG] = ["frame", *HEAD_COLUMNS]
     n = len(frames)
     previous, clipped_before = {}, {}
     if resume and (out / "report.json").is_file():
@@ -614,7 +663,7 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
         k = int(frames[first - 1])
         saved = _load_warm(_warm_path(out, k), k, outputs.done[k], space, model, local.jaw_model)
         if saved is None:   # no warm start on disk (a run of an older facesim): the written controls
-            starts.append(_Start(outputs.controls(k, space)))
+            starts.append(_Start(outputs.controls(k, space), head_frame=outputs.head_frame(k)))
             continue
         restored += 1
         J = saved.jacobian
@@ -750,6 +799,8 @@ def _save_warm(path: Path, k: int, start: _Start) -> None:
     with where that was assembled (``EquilibriumJacobian.tangent_at``)."""
     arrays = {"frame": np.int64(k)}
     _put_controls(arrays, "c", start.controls)
+    if start.head_frame is not None:
+        arrays["head_frame"] = start.head_frame
     if start.x is not None:
         arrays["x"] = start.x
     J = start.jacobian
@@ -781,6 +832,7 @@ def _load_warm(path: Path, k: int, lines, space: ControlSpace, model, jaw_model)
                 return None
             controls = _get_controls(z, "c")
             x = np.array(z["x"]) if "x" in z.files else None
+            head = np.array(z["head_frame"]) if "head_frame" in z.files else None
             J = at = None
             if "J_a" in z.files:
                 if "T_a" in z.files:   # where the tangent was assembled: factorised there again on resume
@@ -793,12 +845,14 @@ def _load_warm(path: Path, k: int, lines, space: ControlSpace, model, jaw_model)
     if (controls.a.shape != (model.n_muscles,) or (x is not None and x.shape != n3) or
             (J is not None and (J.x.shape != n3 or J.dx.shape != (3 * model.n_nodes, space.size)
                                 or J.dP.shape != (3 * model.n_markers, space.size)))
-            or (at is not None and at[1].shape != n3)):
+            or (at is not None and at[1].shape != n3) or (head is not None and head.shape != (4, 4))):
         return None
     a, jaw, _ = _written(controls, space, jaw_model)
     if _control_lines(k, a, jaw, jaw_model) != tuple(lines[:2]):
         return None
-    return _Start(controls, x, J)
+    if len(lines) > len(LOGS) and (head is None or _head_line(k, model, head) != lines[len(LOGS)]):
+        return None   # a run that solves the head: the saved frame must be the one written
+    return _Start(controls, x, J, head)
 
 
 def _stop_summary(outputs, frames) -> dict:

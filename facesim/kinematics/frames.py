@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from facesim._kernels.frames import rigidity_terms
 from facesim.energy import ParameterTerm
 from facesim.errors import FacesimError
 
@@ -88,16 +89,9 @@ def rigidity_penalty(q, project: bool = False):
     matrix for Newton / Gauss-Newton); the default is the exact Hessian. Dimensionless.
     """
     q = _frame(q)
-    M = q[:9].reshape(3, 3)
-    C = M.T @ M - np.eye(3)
-    value = float(np.sum(C * C))
     grad = np.zeros(N_FRAME)
-    grad[:9] = (4.0 * M @ C).ravel()
-    eye = np.eye(3)
-    H9 = 4.0 * (np.einsum("ia,bj->ijab", eye, C) + np.einsum("ib,aj->ijab", M, M)
-                + np.einsum("jb,ia->ijab", eye, M @ M.T)).reshape(9, 9)
-    if project:
-        H9 = psd_project(H9)
+    H9 = np.empty((9, 9))
+    value = float(rigidity_terms(np.ascontiguousarray(q[:9].reshape(3, 3)), bool(project), grad[:9], H9))
     hess = np.zeros((N_FRAME, N_FRAME))
     hess[:9, :9] = H9
     return value, grad, hess

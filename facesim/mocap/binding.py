@@ -109,7 +109,8 @@ def with_markers(sim, markers):
 def bind_neutral(sim, neutral, head: str = "procrustes"):
     """``sim`` with its model's markers bound where the capture's neutral frames ``neutral (r, 3)``
     or ``(k, r, 3)`` put them (model marker order, NaN missing; stabilised first with
-    ``head="procrustes"``; several frames: the per-marker median, robust to an outlier in one
+    ``head="procrustes"``, with ``head="solve"`` by the rigid fit of all their markers onto the
+    model's, as the head markers may be too few or too noisy; several frames: the per-marker median, robust to an outlier in one
     frame) by :func:`rebind_markers`, and a summary of how far the markers
     moved (mm)."""
     model = sim.model
@@ -119,6 +120,15 @@ def bind_neutral(sim, neutral, head: str = "procrustes"):
         raise FacesimError(f"neutral markers: expected (k, {model.n_markers}, 3) positions, got {neutral.shape}")
     if head == "procrustes":
         neutral = stabilise(model, neutral)[0]
+    elif head == "solve":   # the head markers may be too few or noisy: all markers, rigidly onto the model's
+        from facesim.se3 import rigid_fit
+
+        rest = model.marker_positions()
+        for f, frame in enumerate(neutral):
+            ok = np.isfinite(frame).all(axis=1)
+            if ok.sum() >= 3:
+                T = rigid_fit(frame[ok], rest[ok])
+                neutral[f] = frame @ T[:3, :3].T + T[:3, 3]
     with warnings.catch_warnings():   # a marker missing in every neutral frame keeps its binding
         warnings.simplefilter("ignore", RuntimeWarning)
         neutral = np.nanmedian(neutral, axis=0)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facesim.controls_io import read_solution
+from facesim.controls_io import read_head_poses, read_solution
 from facesim.errors import FacesimError
 from facesim.mocap.stabilise import stabilise
 from facesim.viz.render import (ACTIVATION_SKIN_OPACITY, BACKGROUND, COLOR_BY, HEAD_MARKER_COLOUR, MARKER_COLOUR,
@@ -112,7 +112,8 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
         ``report.json``); pictures and video go to ``out_dir/render/``.
     frames : (F,) frame numbers of ``P``; P : (F, r, 3) the capture in the model's marker order,
         mm, NaN missing, as given to ``track`` (``head="procrustes"`` stabilises it the same way,
-        over ``head_smoothing`` frames as the solve did).
+        over ``head_smoothing`` frames as the solve did; ``head="solve"`` moves it into the head
+        frame by the poses of ``OUT/head.csv``).
     fps : video frame rate, Hz; size : (width, height) of a picture in pixels (two panels);
     view : camera of both panels, one of :data:`facesim.viz.render.VIEWS`;
     color_by : the simulated face's colouring, one of :data:`facesim.viz.render.COLOR_BY` (module doc).
@@ -133,6 +134,13 @@ def render_solve(sim, out_dir, frames, P, *, head: str = "procrustes", fps: floa
         raise FacesimError(f"markers: expected ({len(frames)}, {model.n_markers}, 3) positions, got {P.shape}")
     if head == "procrustes":
         P, _ = stabilise(model, P, head_smoothing)
+    elif head == "solve":   # into the head frame by the solved head poses (frames without one stay)
+        poses = read_head_poses(out)
+        P = P.copy()
+        for i, f in enumerate(frames):
+            if int(f) in poses:
+                T = np.linalg.inv(poses[int(f)])
+                P[i] = P[i] @ T[:3, :3].T + T[:3, 3]
     solved, controls = read_solution(out, model)
     row = {int(f): i for i, f in enumerate(frames)}
     pick = [i for i, f in enumerate(solved) if int(f) in row]
