@@ -102,6 +102,18 @@ def test_usd_skin_bones_and_stage_metadata(run, box_model, tmp_path):
     assert list(stage.GetRootLayer().customLayerData["facesim"]["unconverged_frames"]) == []
 
 
+def test_usd_passes_openusd_validation(run, box_model, tmp_path):
+    """The stage passes the validators OpenUSD ships (what ``usdchecker`` runs: stage metadata,
+    geometry encapsulation, composition, attribute types, ...) with no error."""
+    from pxr import UsdValidation
+
+    path = export_cache(run, box_model, usd=tmp_path / "face.usda")["usd"]
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    assert len(validators) >= 10
+    errors = UsdValidation.ValidationContext(validators).Validate(Usd.Stage.Open(str(path)))
+    assert [f"{e.GetName()}: {e.GetMessage()}" for e in errors] == []
+
+
 def test_usd_holds_the_last_converged_frame(failed, box_model, tmp_path):
     path = export_cache(failed, box_model, usd=tmp_path / "face.usda", fps=10)["usd"]
     stage = Usd.Stage.Open(str(path))
