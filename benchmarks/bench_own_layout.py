@@ -168,6 +168,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=30, help="performance frames after the 6 neutral ones")
     ap.add_argument("--out", default="/tmp/own_layout", help="work folder (captures, solves)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--head", choices=("procrustes", "solve"), default="procrustes",
+                    help="solve-mocap --head of both solves (procrustes with --head-smoothing 5)")
     args = ap.parse_args(argv)
 
     from facesim.demo import VISIBLE_MM, neutral_frames
@@ -224,7 +226,8 @@ def main(argv=None) -> int:
     print(f"captures: {own_file} ({len(names)} markers, metres, z up; {int(own_gap.sum())} missing samples), "
           f"{model_file} ({medium.n_markers} markers, mm, model frame; {int(model_gap.sum())} missing)")
 
-    common = ["--model", str(COARSE), "--no-contact", "--noise", str(NOISE_MM), "--head-smoothing", "5",
+    head = ["--head-smoothing", "5"] if args.head == "procrustes" else ["--head", "solve"]
+    common = ["--model", str(COARSE), "--no-contact", "--noise", str(NOISE_MM), *head,
               "--jaw-model", "sliding-condyle", "--bind-frames", f"0:{hold - 1}", "--overwrite", "-q"]
     log = []
     t_own = _solve(["solve-mocap", "--markers", str(own_file), "-o", str(out / "solve_own"), "--layout", "capture",
