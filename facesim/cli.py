@@ -13,14 +13,13 @@ import json
 import os
 import sys
 import time
-import zipfile
-import zlib
 from pathlib import Path
 
 import facesim
 from facesim._files import MESHES, require_suffix
 from facesim.constants import CONTACT_STIFFNESS
 from facesim.errors import FacesimError, ModelFileError, SolverError
+from facesim.anim.cli import add_parsers as add_edit_commands
 from facesim.jaw.cli import add_jaw_commands
 
 RESOLUTIONS = ("test", "coarse", "medium", "paper")
@@ -123,16 +122,10 @@ def _fps(text: str) -> float:
 
 
 def _load(path):
-    """load_model, with the few unreadable files it lets through also turned into one line."""
+    """The model at ``path`` (:func:`facesim.model.load_model`: any unreadable file is one line)."""
     from facesim.model import load_model
 
-    try:
-        return load_model(path)
-    except FacesimError:
-        raise
-    except (TypeError, AttributeError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
-        # e.g. a .npy renamed .npz (np.load returns an array) or corrupt compressed data
-        raise ModelFileError(path, f"not a readable facesim model ({type(exc).__name__}: {exc})") from None
+    return load_model(path)
 
 
 # ------------------------------------------------------------------ model info
@@ -402,14 +395,15 @@ def _simulate_solved(args, model) -> int:
             "activations": str(Path(args.controls_from) / "activations.csv"),
             "jaw": str(Path(args.controls_from) / "jaw.csv") if r.jaw is not None else None,
             "collider_specs": list(args.collider)}
-    return _run_simulate(args, model, r.A, r.frames, r.jaw, r.jaw_model, colliders, options, info)
+    return _run_simulate(args, model, r.A, r.frames, r.jaw, r.jaw_model, colliders, options, info, gain=r.gain)
 
 
-def _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info) -> int:
+def _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, gain=None) -> int:
     from facesim.simulate import simulate
 
     s = simulate(model, A, args.output, frames=frames, jaw=T, jaw_model=jaw_model, colliders=colliders,
-                 options=options, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, info=info)
+                 options=options, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, info=info,
+                 gain=gain)
     reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
     print(f"simulated {s['frames']} frames ({s['converged']} of {s['finished_frames']} converged{reused}) in "
           f"{s['wall_seconds']:.1f} s -> {args.output}")
@@ -1012,6 +1006,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_budget_option(solve)
     solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     solve.set_defaults(func=cmd_solve_mocap, command_parser=solve)
+    add_edit_commands(commands)
     add_jaw_commands(commands)
     return parser
 

@@ -7,7 +7,10 @@ and ``facesim solve-mocap`` writes them.
   for every other jaw model (:func:`read_jaw_csv`);
 * a solve-mocap folder's ``activations.csv`` and ``jaw.csv`` read back as the controls of each
   frame (:func:`read_solution`), or, checked against the run's record, as the input of ``simulate
-  --controls-from`` (:func:`read_replay`).
+  --controls-from`` (:func:`read_replay`; also the folders ``facesim edit`` writes, in the same
+  formats);
+* gains: ``muscle,gain``, one row per muscle, the scale (> 0) of its active force-length curve
+  (:func:`read_gain_csv`; ``gain.csv`` of a ``facesim edit gain`` folder).
 
 Every error is one line naming the file, the line and the column (:mod:`facesim._csv`): besides
 the checks below, frame numbers that are not integers from 0 to 2**53-1 or do not increase, rows
@@ -33,6 +36,17 @@ from facesim.model import FaceModel
 
 JAW_FULL = ("rx", "ry", "rz", "tx", "ty", "tz")
 JAW_OPENING = ("opening",)
+#: the per-muscle gains of a controls folder (:func:`read_gain_csv`); absent: every gain 1
+GAIN_FILE = "gain.csv"
+#: the commands whose output folders ``simulate --controls-from`` replays (:func:`read_replay`)
+REPLAYABLE = ("solve-mocap", "edit")
+
+
+def _closest(name: str, muscle_names) -> str:
+    """The hint of an unknown muscle ``name``: the closest of ``muscle_names``, or the first few."""
+    close = difflib.get_close_matches(name, muscle_names, n=3, cutoff=0.5)
+    return f"closest: {', '.join(close)}" if close else \
+        f"the model's muscles are {', '.join(muscle_names[:6])}{', ...' if len(muscle_names) > 6 else ''}"
 
 
 def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
@@ -51,10 +65,8 @@ def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
     columns = table.header[1:]
     for c in columns:
         if c not in muscle_names:
-            close = difflib.get_close_matches(c, muscle_names, n=3, cutoff=0.5)
-            hint = f"closest: {', '.join(close)}" if close else \
-                f"the model's muscles are {', '.join(muscle_names[:6])}{', ...' if len(muscle_names) > 6 else ''}"
-            raise FacesimError(f"{table.path}: line {table.header_line}, column {c!r}: unknown muscle; {hint}")
+            raise FacesimError(f"{table.path}: line {table.header_line}, column {c!r}: unknown muscle; "
+                               f"{_closest(c, muscle_names)}")
     values = numbers(table, columns)
     bad = np.argwhere((values < 0.0) | (values > 1.0))
     if len(bad):
@@ -64,6 +76,35 @@ def read_activations_csv(path, muscle_names) -> tuple[np.ndarray, np.ndarray]:
     A = np.zeros((len(frames), len(muscle_names)))
     A[:, [muscle_names.index(c) for c in columns]] = values
     return frames, A
+
+
+def read_gain_csv(path, muscle_names) -> np.ndarray:
+    """Read a gains CSV: header ``muscle,gain``, one row per muscle, its gain: the scale (> 0,
+    dimensionless) of the muscle's active force-length curve (Sifakis 2005 Fig. 8; 1 = as built).
+
+    Returns ``(n_muscles,) float64`` in the order of ``muscle_names``; muscles without a row keep 1.
+    One-line :class:`FacesimError` naming the file and line for a missing or empty file, another
+    header, an unknown muscle (with the closest names), a muscle listed twice, or a gain that is
+    not a finite number > 0.
+    """
+    muscle_names = tuple(muscle_names)
+    table = read_table(path, "gain file", first="muscle", example="muscle,gain")
+    if table.header != ("muscle", "gain"):
+        raise FacesimError(f"{table.path}: line {table.header_line}: columns {','.join(table.header)}; expected "
+                           "'muscle,gain'")
+    values = numbers(table, ("gain",))[:, 0]
+    gain, seen = np.ones(len(muscle_names)), set()
+    for i, row in enumerate(table.rows):
+        name = row[0]
+        if name not in muscle_names:
+            raise FacesimError(f"{table.where(i, 'muscle')}: unknown muscle {name!r}; {_closest(name, muscle_names)}")
+        if name in seen:
+            raise FacesimError(f"{table.where(i, 'muscle')}: muscle {name!r} again; expected one row per muscle")
+        if not values[i] > 0.0:
+            raise FacesimError(f"{table.where(i, 'gain')}: gain {row[1]} of {name}; expected a number > 0")
+        seen.add(name)
+        gain[muscle_names.index(name)] = values[i]
+    return gain
 
 
 def read_jaw_csv(path, model: FaceModel, jaw_model="rigid") -> tuple[np.ndarray, np.ndarray]:
@@ -176,7 +217,8 @@ class Replay:
     (None for a jaw model without parameters: the jaw at rest), ``jaw_model`` the jaw model the
     solve used; the solve's contact set-up ``teeth_contact``, ``lip_contact``,
     ``contact_stiffness`` (N/mm^3; None: not recorded) and ``n_colliders``; ``rebound``: the solve rebound the markers to
-    the capture (``--bind-frames``), so its markers are not the model's own."""
+    the capture (``--bind-frames``), so its markers are not the model's own; ``gain (n_muscles,)``
+    the per-muscle force-length scale of the folder's ``gain.csv`` (None without one: all 1)."""
 
     frames: np.ndarray
     A: np.ndarray
@@ -187,25 +229,29 @@ class Replay:
     contact_stiffness: float | None
     n_colliders: int
     rebound: bool
+    gain: np.ndarray | None = None
 
 
-def read_replay(out_dir, model: FaceModel, model_path=None) -> Replay:
+def read_replay(out_dir, model: FaceModel, model_path=None, where: str | None = None) -> Replay:
     """The controls a ``solve-mocap`` run wrote into ``out_dir``, for ``simulate --controls-from``:
     ``activations.csv``, ``jaw.csv`` read with the jaw model recorded in ``report.json``
     (``jaw_model_used``; a run of an older facesim: ``run.json``'s name of a built-in jaw model), and
     the run's contact set-up from ``run.json``. One-line errors: a folder that holds no
     ``solve-mocap`` run, a run made with another model than ``model`` (naming both fingerprints
     and the parts that differ), a jaw model that cannot be rebuilt or differs from the solve's.
-    ``model_path``: where ``model`` was read (for ``posselt``, the model's own rig beside it)."""
+    ``model_path``: where ``model`` was read (for ``posselt``, the model's own rig beside it).
+    A folder written by ``facesim edit`` (the same files, :mod:`facesim.anim.sequence`) replays
+    too, with its ``gain.csv`` if it has one (``gain``). ``where`` starts the messages (default
+    ``--controls-from OUT_DIR``)."""
     from facesim.kinematics.jaw_models import make_jaw_model
     from facesim.runfolder import RUN_RECORD, differences, fingerprint, parts
 
     out = Path(out_dir)
-    where = f"--controls-from {out}"
+    where = where or f"--controls-from {out}"
     record = _json(out / RUN_RECORD, where)
-    if record.get("command") != "solve-mocap":
+    if record.get("command") not in REPLAYABLE:
         raise FacesimError(f"{where}: {out / RUN_RECORD} records a {record.get('command')} run; expected the folder "
-                           "of a solve-mocap run")
+                           "of a solve-mocap run (or of facesim edit)")
     inputs = record.get("inputs") or {}
     mine, theirs = parts(model), inputs.get("model") or {}
     if mine != theirs:
@@ -233,9 +279,10 @@ def read_replay(out_dir, model: FaceModel, model_path=None) -> Replay:
         check_same_frames(out / "jaw.csv", jaw_frames, out / "activations.csv", frames)
     setup = inputs.get("simulator") or {}
     colliders = setup.get("colliders") or []
+    gain = read_gain_csv(out / GAIN_FILE, model.muscles.names) if (out / GAIN_FILE).is_file() else None
     return Replay(frames, A, jaw, jaw_model, bool(setup.get("teeth_contact")), bool(setup.get("lip_contact")),
                   float(setup.get("contact_stiffness") or 0.0) or None, len(colliders),
-                  inputs.get("neutral") is not None)
+                  inputs.get("neutral") is not None, gain)
 
 
 def _json(path: Path, where: str) -> dict:
@@ -252,5 +299,5 @@ def _json(path: Path, where: str) -> dict:
     return value
 
 
-__all__ = ["JAW_FULL", "JAW_OPENING", "Replay", "check_same_frames", "read_activations_csv", "read_jaw_csv",
-           "read_replay", "read_solution"]
+__all__ = ["GAIN_FILE", "JAW_FULL", "JAW_OPENING", "REPLAYABLE", "Replay", "check_same_frames", "read_activations_csv",
+           "read_gain_csv", "read_jaw_csv", "read_replay", "read_solution"]

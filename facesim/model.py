@@ -706,8 +706,22 @@ def load_model(path) -> FaceModel:
     file is missing, not an npz, not a facesim model, of an unknown version, lacks a field, stores
     a field with the wrong kind of dtype (e.g. float tets), or fails the content check of every
     model (module docstring), e.g. ``M.npz: field 'X': expected finite node coordinates (mm),
-    3 of 5,123 nodes (first: node 17) are NaN or inf``.
+    3 of 5,123 nodes (first: node 17) are NaN or inf``; also for the few unreadable files the
+    npz reader lets through (a .npy renamed .npz, corrupt compressed data).
     """
+    import zipfile
+    import zlib
+
+    try:
+        return _load_model(path)
+    except FacesimError:
+        raise
+    except (TypeError, AttributeError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise ModelFileError(path, f"not a readable facesim model ({type(exc).__name__}: {exc})") from None
+
+
+def _load_model(path) -> FaceModel:
+    """:func:`load_model` without the catch-all for unreadable files."""
     with read_npz(path, MODEL_FORMAT) as archive:
         m = archive.field
 

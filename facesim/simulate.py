@@ -282,11 +282,28 @@ def _load_x(out: _Out, k: int, model: FaceModel) -> np.ndarray:
     return x
 
 
-def _inputs(model: FaceModel, A, frames, J, jaw_model, setup) -> dict:
-    """The run record's inputs (:mod:`facesim.runfolder`): what the results depend on."""
-    return {"model": parts(model), "activations": fingerprint(A), "frames": fingerprint(frames),
-            "jaw": fingerprint(np.ascontiguousarray(J)),
-            "jaw_model": {"name": jaw_model.name, "content": fingerprint(jaw_model)}, "simulator": describe(setup)}
+def _gain(model: FaceModel, gain) -> np.ndarray | None:
+    """``gain`` as ``(n_muscles,)`` float64 of finite values > 0, or None for no gain (None or all 1:
+    the muscles as built, the same equilibria)."""
+    if gain is None:
+        return None
+    g = np.array(gain, dtype=np.float64).ravel()
+    if g.shape != (model.n_muscles,) or not np.isfinite(g).all() or not (g > 0).all():
+        got = f"shape {np.shape(gain)}" if g.shape != (model.n_muscles,) else f"values down to {np.nanmin(g):g}" \
+            if np.isfinite(g).all() else "non-finite values"
+        raise FacesimError(f"gain: expected {model.n_muscles} finite per-muscle force-length scales > 0, got {got}")
+    return None if (g == 1.0).all() else g
+
+
+def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None) -> dict:
+    """The run record's inputs (:mod:`facesim.runfolder`): what the results depend on. The gain
+    only when there is one, so the record of a run without gain reads as before."""
+    inputs = {"model": parts(model), "activations": fingerprint(A), "frames": fingerprint(frames),
+              "jaw": fingerprint(np.ascontiguousarray(J)),
+              "jaw_model": {"name": jaw_model.name, "content": fingerprint(jaw_model)}, "simulator": describe(setup)}
+    if gain is not None:
+        inputs["gain"] = fingerprint(gain)
+    return inputs
 
 
 def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, caption: str = "",
@@ -308,7 +325,7 @@ def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, capt
 
 def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, jaw_model="rigid", colliders=(),
              options: SimulateOptions | None = None, resume: bool = False, overwrite: bool = False,
-             progress: bool = True, info: dict | None = None) -> dict:
+             progress: bool = True, info: dict | None = None, gain=None) -> dict:
     """Simulate a sequence of frames and write the results into ``out_dir`` (see the module doc).
 
     Parameters
@@ -330,6 +347,10 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         ``overwrite`` a folder holding a run is an error, as is a folder another run is writing into.
     progress : tqdm bar over frames on stderr.
     info : extra entries for ``report.json`` (e.g. the input file names).
+    gain : ``(n_muscles,)`` per-muscle scale (> 0, dimensionless) of the active force-length curve
+        (Sifakis 2005 Fig. 8: exaggeration beyond what activation 1 reaches); None or all 1: the
+        muscles as built. Recorded in ``run.json`` (a resume with another gain is refused) and
+        ``report.json`` (``gain``: the muscles whose gain is not 1).
 
     Returns the summary written to ``report.json``: frame counts, converged count, the frames
     that did not converge, seconds, options and output paths.
@@ -345,6 +366,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
                                contact_stiffness=options.contact_stiffness)   # checked before anything runs
     jaw_model = make_jaw_model(model, jaw_model)
     A, frames, J = _validate(model, activations, frames, jaw, jaw_model)
+    gain = _gain(model, gain)
     # what no solve could balance is refused before any (facesim.fem.plausible), naming the input
     # files the caller recorded in ``info`` (the CLI's --jaw file, its --collider specs)
     posed = J if jaw is not None else None
@@ -357,7 +379,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     def simulation() -> Simulation:   # built on first use: a run with nothing left to do skips the setup
         nonlocal sim
         if sim is None:
-            sim = Simulation(model, jaw_model, options=setup)
+            sim = Simulation(model, jaw_model, options=setup, gain=gain)
         return sim
 
     if options.render:
@@ -368,10 +390,11 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     out = _Out(out_dir)
     folder = RunFolder(out.root, "simulate", resume, overwrite)
     with folder:   # one run at a time in the folder, from here until report.json is written
-        folder.start(_inputs(model, A, frames, J, jaw_model, setup), out.holds_a_run, out.clear,
+        folder.start(_inputs(model, A, frames, J, jaw_model, setup, gain), out.holds_a_run, out.clear,
                      info={**(info or {}), "model_fingerprint": fingerprint(model)})
+        gains = None if gain is None else {n: float(g) for n, g in zip(model.muscles.names, gain) if g != 1.0}
         return _run(out, model, A, frames, J, jaw is not None, jaw_model, colliders, options, resume, progress,
-                    info, simulation)
+                    {**(info or {}), "gain": gains}, simulation)
 
 
 def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, colliders, options: SimulateOptions,
