@@ -42,6 +42,7 @@ GENERATE = ("jaw", "generate", "--extremes", "-o", "{C}/p.npz")
 FIT_MODEL = ("jaw", "fit-model", "--model", M, "-o", "{C}/rig.npz")
 RETARGET = ("jaw", "retarget", "--rig", "{B}/rp.npz", "--poses", "{B}/ext.npz", "-o", "{C}/rig.npz")
 ENVELOPE = ("jaw", "envelope", "--rig", "{B}/rp.npz", "-o", "{C}/env.png")
+EDIT = ("edit", "scale", "{B}/a.csv", "--factor", "0.5", "--model", M, "-o", "{C}/out", "-q")
 
 
 def set_option(argv, option: str, *values: str, drop: bool = False) -> list:
@@ -424,6 +425,8 @@ def targets() -> list[Target]:
                    base_file="markers.trc", input_name="markers.trc", ops=mu.TRC_OPS),
         FileTarget("solve-mocap.markers.c3d", tuple(set_option(solve, "--markers", "{C}/markers.c3d")), 6,
                    base_file="markers.c3d", input_name="markers.c3d", ops=mu.C3D_OPS, spec="capture"),
+        FileTarget("edit.source", tuple(EDIT[:2] + ("{C}/a.csv",) + EDIT[3:]), 6, base_file="a.csv",
+                   input_name="a.csv", ops=mu.CSV_OPS, spec=ACT),
         # jaw poses
         FileTarget("jaw fit.poses", tuple(set_option(FIT, "--poses", "{C}/p.npz")), 4, base_file="ext.npz",
                    input_name="p.npz", ops=mu.POSES_OPS, spec=POSES),
@@ -458,6 +461,7 @@ def targets() -> list[Target]:
         OptionTarget("jaw fit-model.options", FIT_MODEL, 1, table=FIT_MODEL_OPTIONS),
         OptionTarget("jaw retarget.options", RETARGET, 1, table=RETARGET_OPTIONS),
         OptionTarget("export-cache.options", CACHE, 3, table=CACHE_OPTIONS),
+        OptionTarget("edit.options", EDIT, 3, table=EDIT_OPTIONS),
         ArgvTarget("model build", (), 3, table=BUILD_ARGV),
         # output paths
         OutputTarget("simulate.output", tuple(sim), 3),
@@ -470,6 +474,7 @@ def targets() -> list[Target]:
         OutputTarget("jaw envelope.output", ENVELOPE, 1, kind="file", suffix=".png"),
         OutputTarget("export-cache.usd", CACHE, 1, option="--usd", kind="file", suffix=".usda"),
         OutputTarget("export-cache.pvd", CACHE, 1, option="--pvd", kind="file", suffix=".pvd"),
+        OutputTarget("edit.output", EDIT, 1),
     ]
     return t
 
@@ -550,6 +555,17 @@ SOLVE_OPTIONS = (
     ((("--scheduler", "not-an-address"),), G), ((("--resume",),), E), ((("--markers", None),), G),
     ((("--markers", "{B}/a.csv"),), G), ((("--markers", "{B}/box.npz"),), G), ((("--markers", "{B}/markers.c3d"),), V),
     ((("--markers", "{B}/markers.trc"), ("--units", "cm")), G),
+    ((("--head", "solve"),), E), ((("--head", "solve"), ("--head-smoothing", "3")), E),
+    ((("--head", "solve"), ("--write-meshes",)), E), ((("--head", "tilt"),), G),
+)
+EDIT_OPTIONS = (
+    ((("--factor", "-1"),), G), ((("--factor", "nan"),), G), ((("--factor", "inf"),), G), ((("--factor", "x"),), G),
+    ((("--factor", "1e300"),), G), ((("--factor", "0"),), V), ((("--factor", "2"),), V),
+    ((("--muscles", "nope"),), G), ((("--muscles", ","),), G), ((("--muscles", "zygomaticus_major_L"),), V),
+    ((("--source-fps", "0"),), G), ((("--source-fps", "nan"),), G), ((("--source-fps", "-5"),), G),
+    ((("--jaw", "{B}/a.csv"),), G), ((("--jaw", "{C}/nothing.csv"),), G), ((("--model", "{B}/a.csv"),), G),
+    ((("--model", None),), G), ((("-o", None),), G), ((("--jaw-model", "foo"),), G), ((("--simulate",),), E),
+    ((("--resume",),), E), ((("--resume",), ("--overwrite",)), G),
 )
 FIT_OPTIONS = (
     ((("--iterations", "0"),), G), ((("--iterations", "-1"),), G), ((("--iterations", "x"),), G),
