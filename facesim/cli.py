@@ -779,6 +779,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "meshes/face_medium.npz --refine 1 (default: %(default)s)")
     build.add_argument("-q", "--quiet", action="store_true", help="no progress output while building")
     build.set_defaults(func=cmd_model_build)
+    from facesim.importing.cli import add_import_parser
+
+    add_import_parser(sub)
 
     info = sub.add_parser(
         "info", help="print sizes, names, mesh quality and bounds of a model",
