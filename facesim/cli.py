@@ -206,6 +206,14 @@ def format_summary(s: dict) -> str:
     if s["build"]:
         rows.append(("build", ", ".join(f"{k}={v}" for k, v in s["build"].items()
                                         if isinstance(v, (str, int, float, bool)))))
+    imported = s["build"].get("import") if s["build"] else None
+    if isinstance(imported, dict):   # facesim model import: where it came from
+        inputs = {k: v for k, v in imported.get("inputs", {}).items() if v}
+        rows.append(("imported from", "; ".join(f"{k} {', '.join(v) if isinstance(v, list) else v}"
+                                                for k, v in inputs.items())))
+        frame = imported.get("input_frame", {})
+        rows.append(("", f"{imported.get('route', {}).get('route')} route; units {imported.get('units', {}).get('name')}"
+                         f"; frame {frame.get('how')}; fix-boundary {imported.get('fix_boundary')}"))
     out = [f"{k:<14}{v}" for k, v in rows]
     if s["muscles"]:
         out.append("")
@@ -337,7 +345,9 @@ def cmd_simulate(args) -> int:
     _warn_ignored(args, [("view", not render, "without --render or --video"),
                          ("size", not render, "without --render or --video"),
                          ("color_by", not render, "without --render or --video"),
-                         ("contact_stiffness", not contact, "without --teeth-contact, --lip-contact or --collider")])
+                         ("contact_stiffness", not contact, "without --teeth-contact, --lip-contact or --collider"),
+                         *((name, not args.dynamic, "without --dynamic")
+                           for name in ("substeps", "soften", "density", "damping", "integrator"))])
     model = _load(args.model)
     if args.controls_from is not None:
         return _simulate_solved(args, model)
@@ -369,7 +379,8 @@ def _simulate_options(args, model, teeth: bool = False, lips: bool = False, stif
                            fps=args.fps, render=args.render or args.video, video=args.video, view=args.view,
                            size=args.size, teeth_contact=args.teeth_contact or teeth,
                            lip_contact=args.lip_contact or lips, contact_stiffness=stiffness or args.contact_stiffness,
-                           color_by=args.color_by)
+                           color_by=args.color_by, dynamic=args.dynamic, substeps=args.substeps, damping=args.damping,
+                           soften=tuple(args.soften), density=tuple(args.density), integrator=args.integrator)
 
 
 def _simulate_solved(args, model) -> int:
@@ -874,7 +885,26 @@ def build_parser() -> argparse.ArgumentParser:
                           help="picture size of --render in pixels (default: 640x640)")
     _add_color_by_option(simulate, "in the --render pictures")
     simulate.add_argument("--fps", type=_fps, default=30.0,
-                          help="frame rate in Hz of the TRC time column and the video (default: %(default)g)")
+                          help="frame rate in Hz of the TRC time column and the video, and with --dynamic the "
+                               "physical frame rate of the controls (default: %(default)g)")
+    simulate.add_argument("--dynamic", action="store_true",
+                          help="integrate in time (BDF2: inertia from tissue densities, Rayleigh damping, the same "
+                               "energy and contact) instead of a quasistatic equilibrium per frame; the first frame "
+                               "is the quasistatic equilibrium, at rest")
+    simulate.add_argument("--substeps", type=_count(1, 1000), default=2, metavar="N",
+                          help="with --dynamic: time steps per frame (default: %(default)s; 4 or more for ballistic "
+                               "detail)")
+    simulate.add_argument("--soften", action="append", default=[], metavar="TISSUE:FACTOR",
+                          help="with --dynamic: scale a tissue's stiffness (c10, c01, kappa), e.g. nose:0.2; "
+                               "repeatable")
+    simulate.add_argument("--density", action="append", default=[], metavar="TISSUE:VALUE",
+                          help="with --dynamic: a tissue's density, t/mm^3 (default 1.06e-9; nose cartilage "
+                               "1.1e-9); repeatable")
+    simulate.add_argument("--damping", default="0,1e-3", metavar="ALPHA,BETA",
+                          help="with --dynamic: Rayleigh damping C = ALPHA M + BETA K, 1/s and s "
+                               "(default: %(default)s)")
+    simulate.add_argument("--integrator", choices=("bdf2", "euler"), default="bdf2",
+                          help="with --dynamic: time integrator (default: %(default)s)")
     again = simulate.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true",
                        help="continue the run in OUT_DIR after its last complete frame (frames whose activations "

@@ -22,6 +22,18 @@ resumed run writes what an uninterrupted one would. A frame that does not conver
 for inspection but flagged (``converged`` 0 in ``frames.csv``, listed in ``report.json``), its
 markers are written as NaN (missing), and the next frame starts from the last converged one.
 
+Dynamic runs (``SimulateOptions(dynamic=True)``, :mod:`facesim.fem.dynamics`): the first frame is
+the quasistatic equilibrium of its controls, at rest; every later frame is ``substeps`` implicit
+(BDF2) time steps of ``1 / fps`` s per frame interval, with inertia, Rayleigh damping and the
+per-tissue density and stiffness overrides, on the same energy and contact. The files are the same;
+the state files also hold the velocities ``v (n, 3)`` mm/s, the previous step's ``x_prev`` and
+``v_prev`` and its length ``h_prev`` s, so a resume restarts the integration exactly where it
+stopped, and ``frames.csv`` has two more columns, ``substeps`` and ``kinetic_energy_mJ``. The
+integration options and ``fps`` are inputs of a dynamic run. A frame whose steps did not all
+converge is flagged like a quasistatic one and the integration goes on from it; a step that fails
+numerically (non-finite positions, a linear solver failing) restarts the integration at rest from
+the frame's quasistatic equilibrium (the frame is flagged, its ``error`` says so).
+
 The folder (:class:`facesim.runfolder.RunFolder`): one run at a time (``OUT/.lock``); a folder
 holding a run needs ``resume`` or ``overwrite``; ``OUT/run.json`` records the inputs (model,
 activations, jaw, frames, jaw model, solver and contact options), and a resume with other inputs
@@ -53,6 +65,8 @@ from facesim.runfolder import RunFolder, describe, fingerprint, finish, parts
 FRAME_LOG_COLUMNS = ("frame", "converged", "stop_reason", "iterations", "relative_residual", "residual_N", "seconds",
                      "linear_iterations", "penetration_mm", "lip_penetration_mm", "teeth_penetration_mm",
                      "inverted_tets", "min_J", "error")
+DYNAMIC_LOG_COLUMNS = FRAME_LOG_COLUMNS + ("substeps", "kinetic_energy_mJ")
+"""``frames.csv`` of a dynamic run: time steps of the frame and kinetic energy at its end (mJ)."""
 COLOR_BY = ("none", "displacement", "activation")
 _OUTPUT_FILES = ("markers.csv", "markers.trc", "markers.c3d", "frames.csv", "report.json", "video.mp4", "video.gif")
 _FRAME_FILE = re.compile(r"frame_\d+\.(ply|npz|png)$")
@@ -66,7 +80,13 @@ class SimulateOptions:
     (implies render); view, size : camera (see :data:`facesim.viz.render.VIEWS`) and pixels;
     color_by : ``"none"``, ``"displacement"`` (skin coloured by |x - X|) or ``"activation"``
     (muscles by the frame's activations) in the renders; teeth_contact, lip_contact, contact_stiffness : contact of the lips with the teeth and with
-    each other, penalty stiffness in N/mm^3 (also used for external colliders)."""
+    each other, penalty stiffness in N/mm^3 (also used for external colliders).
+
+    dynamic : integrate in time (:mod:`facesim.fem.dynamics`) instead of a quasistatic equilibrium
+    per frame; ``fps`` is then the physical frame rate. With it: substeps (time steps per frame),
+    damping (``(alpha 1/s, beta s)`` or ``"ALPHA,BETA"``), soften (``TISSUE:FACTOR`` specs such as
+    ``"nose:0.2"``), density (``TISSUE:VALUE`` t/mm^3), integrator (``"bdf2"`` or ``"euler"``);
+    see :class:`~facesim.fem.dynamics.DynamicsOptions`. Ignored without ``dynamic``."""
 
     newton: NewtonOptions = field(default_factory=NewtonOptions)
     fps: float = 30.0
@@ -78,14 +98,30 @@ class SimulateOptions:
     teeth_contact: bool = False
     lip_contact: bool = False
     contact_stiffness: float = CONTACT_STIFFNESS
+    dynamic: bool = False
+    substeps: int = 2
+    damping: tuple = (0.0, 1e-3)
+    soften: tuple = ()
+    density: tuple = ()
+    integrator: str = "bdf2"
 
     def __post_init__(self):
         if not (math.isfinite(self.fps) and self.fps > 0):
             raise FacesimError(f"fps: expected a frame rate > 0, got {self.fps}")
+        dyn = self.dynamics()   # checks the dynamic options and normalises them (specs as pairs)
+        for name in ("substeps", "damping", "soften", "density"):
+            object.__setattr__(self, name, getattr(dyn, name))
         if self.color_by not in COLOR_BY:
             raise FacesimError(f"color_by: expected one of {', '.join(COLOR_BY)}, got {self.color_by!r}")
         if self.video:
             object.__setattr__(self, "render", True)
+
+    def dynamics(self):
+        """The :class:`~facesim.fem.dynamics.DynamicsOptions` of these options."""
+        from facesim.fem.dynamics import DynamicsOptions
+
+        return DynamicsOptions(method=self.integrator, substeps=self.substeps, damping=self.damping,
+                               density=self.density, soften=self.soften)
 
 
 class _Out:
@@ -117,19 +153,20 @@ class _Out:
         clear_frame_files(self.root)
 
 
-def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str) -> None:
+def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str, extra=None) -> None:
     atomic_write(path, lambda tmp: np.savez(tmp, x=np.asarray(x, dtype=np.float64), a=a, jaw=jaw, frame=k,
-                                            converged=converged, error=error))
+                                            converged=converged, error=error, **(extra or {})))
 
 
-def write_frame(out_dir, model: FaceModel, k: int, x, a, jaw, converged: bool, error: str = "") -> None:
+def write_frame(out_dir, model: FaceModel, k: int, x, a, jaw, converged: bool, error: str = "", extra=None) -> None:
     """The files of frame ``k`` as ``simulate`` writes them into ``out_dir`` (also ``solve-mocap
     --write-meshes``): ``state/frame_KKKKK.npz`` (``x (n, 3)`` mm at full precision, ``a
     (n_muscles,)``, ``jaw`` the jaw model's controls, ``frame``, ``converged``, ``error``), then
     ``skin/frame_KKKKK.ply`` (the skin at ``x``; rest positions where ``x`` is not finite, so a
-    diverged frame still has its files). Each file is written atomically."""
+    diverged frame still has its files); ``extra``: more arrays for the state file (a dynamic run's
+    velocities and history). Each file is written atomically."""
     out = _Out(out_dir)
-    _save_state(out.state(k), k, x, a, jaw, converged, error)
+    _save_state(out.state(k), k, x, a, jaw, converged, error, extra)
     _draw(out, model, k, x, SimulateOptions(), png=False)
 
 
@@ -211,20 +248,22 @@ def _frame_row(k: int, f, seconds: float) -> dict:
 
 _MEASURES = ("penetration_mm", "lip_penetration_mm", "teeth_penetration_mm")
 _FORMATS = {"relative_residual": "{:.3e}", "residual_N": "{:.3e}", "seconds": "{:.3f}", "min_J": "{:.4g}",
-            **dict.fromkeys(_MEASURES, "{:.4f}")}
+            **dict.fromkeys(_MEASURES, "{:.4f}"), "kinetic_energy_mJ": "{:.6e}"}
 
 
-def _row_line(row: dict) -> str:
-    return csv_line([_FORMATS.get(c, "{}").format(row[c]) for c in FRAME_LOG_COLUMNS])
+def _row_line(row: dict, columns=FRAME_LOG_COLUMNS) -> str:
+    return csv_line([_FORMATS.get(c, "{}").format(row[c]) for c in columns])
 
 
-def _parse_row(line: str) -> dict:
+def _parse_row(line: str, columns=FRAME_LOG_COLUMNS) -> dict:
     values = next(csv.reader([line]))
-    row = dict(zip(FRAME_LOG_COLUMNS, values))
-    for c in ("frame", "converged", "iterations", "linear_iterations", "inverted_tets"):
-        row[c] = int(row[c])
-    for c in ("relative_residual", "residual_N", "seconds", "min_J", *_MEASURES):
-        row[c] = float(row[c])
+    row = dict(zip(columns, values))
+    for c in ("frame", "converged", "iterations", "linear_iterations", "inverted_tets", "substeps"):
+        if c in row:
+            row[c] = int(row[c])
+    for c in ("relative_residual", "residual_N", "seconds", "min_J", *_MEASURES, "kinetic_energy_mJ"):
+        if c in row:
+            row[c] = float(row[c])
     return row
 
 
@@ -254,7 +293,7 @@ def _validate(model: FaceModel, activations, frames, jaw, jaw_model):
 
 def _complete_frames(out: _Out, frames, A, J, model: FaceModel, mk_header: str, log_header: str):
     """Number of leading frames already complete in ``out`` and their log lines."""
-    rows = read_lines(out.frames_csv, log_header, len(FRAME_LOG_COLUMNS))
+    rows = read_lines(out.frames_csv, log_header)
     marks = read_lines(out.markers_csv, mk_header, 1 + 3 * model.n_markers)
     n = 0
     for i, k in enumerate(frames):
@@ -295,14 +334,17 @@ def _gain(model: FaceModel, gain) -> np.ndarray | None:
     return None if (g == 1.0).all() else g
 
 
-def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None) -> dict:
+def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None, dynamics=None, fps=None) -> dict:
     """The run record's inputs (:mod:`facesim.runfolder`): what the results depend on. The gain
-    only when there is one, so the record of a run without gain reads as before."""
+    only when there is one and the integration options (with the frame rate) only in a dynamic
+    run, so the record of a quasistatic run without gain reads as before."""
     inputs = {"model": parts(model), "activations": fingerprint(A), "frames": fingerprint(frames),
               "jaw": fingerprint(np.ascontiguousarray(J)),
               "jaw_model": {"name": jaw_model.name, "content": fingerprint(jaw_model)}, "simulator": describe(setup)}
     if gain is not None:
         inputs["gain"] = fingerprint(gain)
+    if dynamics is not None:
+        inputs["dynamics"] = {**describe(dynamics), "fps": fps}
     return inputs
 
 
@@ -352,6 +394,9 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         muscles as built. Recorded in ``run.json`` (a resume with another gain is refused) and
         ``report.json`` (``gain``: the muscles whose gain is not 1).
 
+    With ``options.dynamic`` the frames are integrated in time (see the module doc and
+    :mod:`facesim.fem.dynamics`).
+
     Returns the summary written to ``report.json``: frame counts, converged count, the frames
     that did not converge, seconds, options and output paths.
     """
@@ -374,12 +419,23 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         check_jaw(model, jaw_model, frames, posed, (info or {}).get("jaw") or "jaw")
     check_colliders(model, setup.colliders, frames, jaw_model, posed,
                     "--collider" if (info or {}).get("collider_specs") else "colliders")
+    dynamics = options.dynamics() if options.dynamic else None
+    if dynamics is not None:   # tissue names are checked against the model before anything runs
+        from facesim.fem.dynamics import softened_model, tissue_densities
+
+        softened_model(model, dynamics.soften)
+        tissue_densities(model, dynamics.density)
     sim = None
 
     def simulation() -> Simulation:   # built on first use: a run with nothing left to do skips the setup
         nonlocal sim
         if sim is None:
-            sim = Simulation(model, jaw_model, options=setup, gain=gain)
+            if dynamics is not None:
+                from facesim.fem.dynamics import DynamicSimulator
+
+                sim = DynamicSimulator(model, setup, jaw_model=jaw_model, gain=gain, dynamics=dynamics)
+            else:
+                sim = Simulation(model, jaw_model, options=setup, gain=gain)
         return sim
 
     if options.render:
@@ -390,7 +446,8 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     out = _Out(out_dir)
     folder = RunFolder(out.root, "simulate", resume, overwrite)
     with folder:   # one run at a time in the folder, from here until report.json is written
-        folder.start(_inputs(model, A, frames, J, jaw_model, setup, gain), out.holds_a_run, out.clear,
+        folder.start(_inputs(model, A, frames, J, jaw_model, setup, gain, dynamics, options.fps), out.holds_a_run,
+                     out.clear,
                      info={**(info or {}), "model_fingerprint": fingerprint(model)})
         gains = None if gain is None else {n: float(g) for n, g in zip(model.muscles.names, gain) if g != 1.0}
         return _run(out, model, A, frames, J, jaw is not None, jaw_model, colliders, options, resume, progress,
@@ -408,7 +465,8 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
     from facesim.mocap.io import marker_csv_header, marker_csv_line, read_markers_csv, write_trc
 
     mk_header = marker_csv_header(model.markers.names)
-    log_header = ",".join(FRAME_LOG_COLUMNS) + "\n"
+    columns = DYNAMIC_LOG_COLUMNS if options.dynamic else FRAME_LOG_COLUMNS
+    log_header = ",".join(columns) + "\n"
     n_done, old_rows, old_marks = (_complete_frames(out, frames, A, J, model, mk_header, log_header) if resume
                                    else (0, [], []))
 
@@ -422,19 +480,26 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
                     "video": options.video, "view": options.view, "size": list(options.size), "resume": resume,
                     "jaw_model": jaw_model.name,
                     "teeth_contact": options.teeth_contact, "lip_contact": options.lip_contact,
-                    "contact_stiffness": options.contact_stiffness, "colliders": len(colliders)},
+                    "contact_stiffness": options.contact_stiffness, "colliders": len(colliders),
+                    **({"dynamic": {"integrator": options.integrator, "substeps": options.substeps,
+                                    "damping": list(options.damping), "soften": dict(options.soften),
+                                    "density": dict(options.density)}} if options.dynamic else {})},
         "frames": len(frames), "first_frame": int(frames[0]), "last_frame": int(frames[-1]),
         "resumed_at_frame": int(frames[n_done]) if resume and n_done < len(frames) else None,
         "reused_frames": n_done,
     }
     atomic_write(out.report, lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
 
-    rows = [_parse_row(line) for line in old_rows]
+    rows = [_parse_row(line, columns) for line in old_rows]
     # Warm start: the last converged complete frame (a diverged state is a poor starting guess),
     # its positions as solved (the state file holds them at full precision: the same warm start
     # as in an uninterrupted run)
     converged_before = [r["frame"] for r in rows if r["converged"]]
     x_warm = _load_x(out, converged_before[-1], model) if converged_before else None
+    # a dynamic run goes on from the state of the last complete frame, converged or not (None: the
+    # first frame starts at rest from its quasistatic equilibrium)
+    state = _load_dynamic_state(out, model, int(frames[n_done - 1]), A[n_done - 1],
+                                J[n_done - 1] if posed_jaw else None) if options.dynamic and n_done else None
     for i, k in enumerate(map(int, frames[:n_done])):   # files derived from complete frames' states: redraw missing
         skin, png = not out.skin(k).is_file(), options.render and not out.png(k).is_file()
         if skin or png:
@@ -450,16 +515,24 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
             for i in range(n_done, len(frames)):
                 k = int(frames[i])
                 t0 = time.perf_counter()
-                f = simulation().step(A[i], jaw=J[i] if posed_jaw else None, frame=k, x0=x_warm)
+                extra = None
+                if options.dynamic:
+                    f, state, n_steps = _dynamic_frame(simulation(), state, A[i], J[i] if posed_jaw else None, k,
+                                                       options)
+                    extra = {key: v for key, v in state.arrays().items() if key != "x"}
+                else:
+                    f = simulation().step(A[i], jaw=J[i] if posed_jaw else None, frame=k, x0=x_warm)
                 x, converged = f.x, f.converged
                 seconds = f.seconds if f.report is not None else time.perf_counter() - t0
-                write_frame(out.root, model, k, x, A[i], J[i], converged, f.error)
+                write_frame(out.root, model, k, x, A[i], J[i], converged, f.error, extra)
                 _draw(out, model, k, x, options, "" if converged else " (not converged)", skin=False,
                       colliders=f.colliders, a=A[i])
                 P = model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan)
                 marker_log.add(marker_csv_line(k, P))
                 row = _frame_row(k, f, seconds)
-                frame_log.add(_row_line(row))   # last: the frame is complete once this row is on disk
+                if options.dynamic:
+                    row.update(substeps=n_steps, kinetic_energy_mJ=simulation().kinetic_energy(state.v))
+                frame_log.add(_row_line(row, columns))   # last: the frame is complete once this row is on disk
                 rows.append(row)
                 if converged:
                     x_warm = x
@@ -498,6 +571,54 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
     return summary
 
 
+def _load_dynamic_state(out: _Out, model: FaceModel, k: int, a, jaw):
+    """The :class:`~facesim.fem.dynamics.DynamicState` a dynamic run left after frame ``k`` (its
+    state file at full precision: the integration goes on exactly as it would have)."""
+    from facesim.controls import Controls
+    from facesim.fem.dynamics import DynamicState
+
+    _load_x(out, k, model)   # the model's shape
+    try:
+        with np.load(out.state(k)) as z:
+            return DynamicState.from_arrays(z, Controls(a, jaw=jaw), k)
+    except KeyError:
+        raise FacesimError(f"{out.state(k)}: no velocities (v, x_prev, v_prev, h_prev): not the state of a dynamic "
+                           "run; use --overwrite") from None
+
+
+def _dynamic_frame(dyn, state, a, jaw, k: int, options: SimulateOptions):
+    """Frame ``k`` of a dynamic run from ``state`` (None: the first frame, the quasistatic
+    equilibrium at rest): ``substeps`` time steps per frame interval of ``1 / fps`` s. A step that
+    fails numerically restarts at rest from the frame's quasistatic equilibrium, flagged. Returns
+    ``(Frame, state, time steps taken)``."""
+    from facesim.controls import Controls
+    from facesim.errors import SolverError
+    from facesim.session import Frame
+
+    controls = Controls(a, jaw=jaw)
+    steps, error = 0, ""
+    if state is None:
+        state, report, error = dyn.restart(controls, None, k)
+        converged = report is not None and report.converged
+    else:
+        gap = k - state.frame   # frame numbers may skip: the step stays 1 / (fps substeps)
+        try:
+            steps = options.substeps * int(round(gap))
+            state, rep = dyn.advance(state, controls, gap / options.fps, k, substeps=steps)
+            report, converged = rep.solve_report(), rep.converged
+        except SolverError as exc:
+            state, report, error = dyn.restart(controls, state.x, k)
+            error = f"dynamic step failed ({' '.join(str(exc).split())}); restarted at rest" + (f"; {error}" if error
+                                                                                              else "")
+            converged = False
+    sim = dyn.sim
+    x = state.x
+    inverted, min_J = sim.element_quality(x)
+    f = Frame(float(k), x, controls, converged, report, sim.posed_colliders(controls, k),
+              sim.contact_measures(x, controls, k), inverted, min_J, error, dyn.model)
+    return f, state, steps
+
+
 def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
     failed = [r for r in rows if not r["converged"]]
     return {
@@ -512,6 +633,9 @@ def _summarise(rows: list[dict], status: str, wall: float, out: _Out) -> dict:
         "frames_with_inverted_tets": [r["frame"] for r in rows if r["inverted_tets"] != 0],
         "min_J": float(min((r["min_J"] for r in rows), default=math.nan)),
         **{f"max_{c}": float(np.nanmax([r[c] for r in rows] + [0.0])) for c in _MEASURES},
+        **({"time_steps": int(sum(r["substeps"] for r in rows)),
+            "max_kinetic_energy_mJ": float(max(r["kinetic_energy_mJ"] for r in rows))}
+           if rows and "substeps" in rows[0] else {}),
         "solve_seconds": round(float(sum(r["seconds"] for r in rows)), 3),
         "wall_seconds": round(wall, 3),
         "outputs": {"skin": str(out.root / "skin"), "state": str(out.root / "state"),
