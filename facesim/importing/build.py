@@ -47,15 +47,17 @@ RESOLUTIONS = {"coarse": 8.0, "medium": 5.0}
 FIX_BOUNDARY = ("cut", "none")
 REMESH = ("auto", "yes", "no")
 #: fTetWild's envelope (mm): how far the meshed flesh's surface may stray from the input surfaces
-ENVELOPE_MM = 0.5
+ENVELOPE_MM = 0.25   # 0.5 mm closes the lips' slit of the Badin face
 #: with ``remesh="auto"``, a given volume mesh is re-meshed when its worst tet is below either figure:
 #: slivers invert under the first large motion (Badin's split hexes reach 0.12 degrees)
 REMESH_MIN_DIHEDRAL_DEG = 5.0
 REMESH_MIN_VOLUME_RATIO = 0.05
 #: a flesh node within this distance (mm) of a bone is attached to it (at least; see ATTACH_EDGE)
-ATTACH_MM = 2.0
+ATTACH_MM = 2.5
 #: ... or within this fraction of the mesh's median edge, on coarse meshes
-ATTACH_EDGE = 0.25
+ATTACH_EDGE = 0.4
+#: a flesh surface node this close (mm) to a tooth rests on it and moves with its bone
+TOUCH_MM = 1.0
 #: inner-surface nodes this close (mm) to a bone (nearer than to anything else) lie on it, with a gap
 ON_BONE_GAP_MM = 6.0
 #: inner-surface nodes nearest the teeth within this distance (mm) are the lips' and cheeks' lining: free
@@ -66,7 +68,7 @@ WARP_SMOOTHING = 1.0
 #: the landmark warp is refined this many times by surface correspondences (skin to skin, bone to bone)
 REFINE_ITERATIONS = 3
 #: spacing (mm) of the subject's surface points paired with the template's, and the farthest pair kept
-REFINE_SPACING_MM = 8.0
+REFINE_SPACING_MM = 10.0
 REFINE_MAX_MM = 15.0
 #: smoothing of the refined warp (the pairs are approximate: nearest points, not true correspondences)
 REFINE_SMOOTHING = 500.0
@@ -118,6 +120,7 @@ def import_model(*, skin=None, flesh=None, cranium=(), mandible=None, teeth_uppe
         raise FacesimError(f"--remesh: expected one of {', '.join(REMESH)}, got {remesh!r}")
     cranium = [cranium] if isinstance(cranium, (str, os.PathLike)) else list(cranium)
     edge = _edge(resolution)
+    overrides = lm.load_landmarks(landmarks) if landmarks is not None else None   # a bad file fails first
     # ---- read
     mand = read_surface(mandible, "mandible")
     crania = [read_surface(p, "cranium") for p in cranium]
@@ -134,6 +137,10 @@ def import_model(*, skin=None, flesh=None, cranium=(), mandible=None, teeth_uppe
     scale, unit_name, unit_reason = infer_units(np.concatenate([points, mand.vertices]), units,
                                                 source=Path(skin or flesh).name)
     _say(progress, f"units: {unit_reason}")
+    span = float(np.ptp(scale * mand.vertices, axis=0).max())
+    if not 40.0 <= span <= 250.0:   # an adult mandible spans ~90-130 mm
+        raise FacesimError(f"{mand.path}: the mandible spans {span:.3g} mm in {unit_name}; expected 40 to 250 mm: "
+                           f"are the units right (--units auto|m|cm|mm)?")
     timings["read"] = time.perf_counter() - t0
     # ---- frame
     t = time.perf_counter()
@@ -193,7 +200,6 @@ def import_model(*, skin=None, flesh=None, cranium=(), mandible=None, teeth_uppe
     timings["attach"] = time.perf_counter() - t
     # ---- landmarks and the TMJ
     t = time.perf_counter()
-    overrides = lm.load_landmarks(landmarks) if landmarks is not None else None
     mesh = lm.Mesh
     found, how = lm.detect(mesh(mand_mm.vertices, mand_mm.faces),
                            mesh.join([mesh(c.vertices, c.faces) for c in crania_mm]) if crania_mm else None,
@@ -367,8 +373,10 @@ def attachments(X, T, split, mandible, crania, teeth, fix_boundary: str = "cut")
     """``(cranium_nodes, jaw_nodes, report)`` of the flesh ``X (n, 3)`` mm, ``T (m, 4)``.
 
     Every node within ``max(ATTACH_MM, ATTACH_EDGE x median edge)`` of a bone moves with it (the
-    nearer bone when both are that close), unless the teeth are nearer still (the lining of the
-    lips and cheeks against them). Inner-surface nodes (``split.inner``) nearer a bone
+    nearer bone when both are that close); inside the flesh the teeth count with their bone (the
+    flesh round them is gum), while on its surface a node nearer the teeth than the bone is the
+    lining of the lips and cheeks against them, and stays free unless it touches a tooth (within
+    ``TOUCH_MM``: it rests on it and moves with it). Inner-surface nodes (``split.inner``) nearer a bone
     than anything else and within ``ON_BONE_GAP_MM`` lie on it across a modelling gap: attached
     too. Inner-surface nodes nearest the teeth (within ``LINING_MM``) are the lips' and cheeks'
     lining: free. With ``fix_boundary="cut"``, the remaining inner surface (lying on bone the
@@ -379,10 +387,19 @@ def attachments(X, T, split, mandible, crania, teeth, fix_boundary: str = "cut")
     tol = max(ATTACH_MM, ATTACH_EDGE * edge)
     d_j = _nearest(X, [mandible])
     d_c = _nearest(X, crania)
-    d_t = _nearest(X, teeth)
-    # a node nearer the teeth than the bone (the lips' and cheeks' lining against the teeth) stays free
-    jaw = (d_j <= tol) & (d_j <= d_c) & (d_j <= d_t)
-    cra = (d_c <= tol) & ~jaw & (d_c <= d_t)
+    d_tu = _nearest(X, [t for t in teeth if t.role == "teeth_upper"])
+    d_tl = _nearest(X, [t for t in teeth if t.role == "teeth_lower"])
+    d_t = np.minimum(d_tu, d_tl)
+    surface = np.zeros(len(X), bool)
+    surface[np.unique(np.concatenate([split.outer, split.inner]))] = True
+    # inside the flesh, the teeth count with their bone (flesh round them is gum); on its surface a
+    # node nearer the teeth than the bone is the lips' and cheeks' lining against them: free
+    # -- unless it touches them (within TOUCH_MM): lining resting on the teeth moves with them
+    lining_free = surface & (d_t > TOUCH_MM)
+    dJ = np.where(lining_free, d_j, np.minimum(d_j, d_tl))
+    dC = np.where(lining_free, d_c, np.minimum(d_c, d_tu))
+    jaw = (dJ <= tol) & (dJ <= dC) & (~lining_free | (d_j <= d_t))
+    cra = (dC <= tol) & ~jaw & (~lining_free | (d_c <= d_t))
     inner = np.zeros(len(X), bool)
     inner[np.unique(split.inner)] = True
     outer = np.zeros(len(X), bool)
@@ -443,25 +460,30 @@ def _vertex_normals(V, F) -> np.ndarray:
 
 def surface_pairs(template_surface, subject_surface, warp, spacing=REFINE_SPACING_MM, max_mm=REFINE_MAX_MM):
     """Correspondences ``(template points (k, 3), subject points (k, 3))`` between two surfaces
-    ``(V, F)`` mm, for refining ``warp``: the subject's vertices thinned to one per ``spacing`` mm
-    cube, each paired with the warped template vertex nearest it when that is within ``max_mm``
-    and its normal agrees (cosine > 0.5); a template vertex pairs once (its nearest subject point).
-    Pairs are taken from the subject's side, so a surface the subject lacks (a face mask's back, a
-    cranium given as a maxilla only) draws nothing."""
+    ``(V, F)`` mm, for refining ``warp``: the template's vertices thinned to one per ``spacing``
+    mm cube of the template's own frame (so the same points whatever the subject's pose), each
+    warped and paired with the nearest subject vertex when that is within ``max_mm``, its normal
+    agrees (cosine > 0.5) and it is not on an open edge of the subject's surface (a face mask's
+    rim: what lies beyond it, the subject lacks); a subject vertex pairs once (its nearest)."""
+    from facesim.importing.meshes import boundary_loops
+
     (Vt, Ft), (Vs, Fs) = template_surface, subject_surface
-    used = np.unique(Fs)
-    _, first = np.unique(np.floor(Vs[used] / spacing).astype(np.int64), axis=0, return_index=True)
-    pick = used[first]
-    W = warp(Vt)
-    nw = _vertex_normals(W, Ft)
-    ns = _vertex_normals(Vs, Fs)[pick]
-    d, j = cKDTree(W).query(Vs[pick])
-    ok = (d <= max_mm) & (np.einsum("ij,ij->i", nw[j], ns) > 0.5)
-    j, q, d = j[ok], Vs[pick][ok], d[ok]
-    order = np.argsort(d)
+    used = np.unique(Ft)
+    _, first = np.unique(np.floor(Vt[used] / spacing).astype(np.int64), axis=0, return_index=True)
+    pick = used[np.sort(first)]
+    W = warp(Vt[pick])
+    nw = _vertex_normals(warp(Vt), Ft)[pick]
+    ns = _vertex_normals(Vs, Fs)
+    rim = np.zeros(len(Vs), bool)
+    for loop in boundary_loops(np.asarray(Fs, dtype=np.int64)):
+        rim[loop] = True
+    d, j = cKDTree(Vs).query(W)
+    ok = (d <= max_mm) & (np.einsum("ij,ij->i", nw, ns[j]) > 0.5) & ~rim[j]
+    P, j, d = Vt[pick][ok], j[ok], d[ok]
+    order = np.lexsort((np.arange(len(d)), d))
     _, keep = np.unique(j[order], return_index=True)
-    keep = order[keep]
-    return Vt[j[keep]], q[keep]
+    keep = np.sort(order[keep])
+    return P[keep], Vs[j[keep]]
 
 
 def refined_warp(template, landmarks, X, skin, mandible=None, crania=(), iterations=REFINE_ITERATIONS):

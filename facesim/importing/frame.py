@@ -396,13 +396,17 @@ def anatomical_frame(mandible: Surface, cranium: Sequence[Surface] = (), skin: S
         how = "anatomy"
         iterations = 12
     meshes = None
-    for _ in range(iterations + 1):
-        T = _transform(R, origin)
-        man, *rest = _meshes(surfaces, scale_to_mm, T, edges)
+
+    def bones_at(R, origin):
+        """The bone meshes in the frame (R, origin), the midline's x and the bone landmarks there."""
+        man, *rest = _meshes(surfaces, scale_to_mm, _transform(R, origin), edges)
         cran = lm.Mesh.join(rest[:len(cranium)])
         tu, tl = rest[len(cranium) + 1], rest[len(cranium) + 2]
         x_mid = _plane_x(n, d, R, origin) if spec is None else 0.0
-        found, found_how = lm.bone_landmarks(man, cran, tu, tl, x_mid=x_mid)
+        return (tu, tl, x_mid, *lm.bone_landmarks(man, cran, tu, tl, x_mid=x_mid))
+
+    for _ in range(iterations + 1):
+        tu, tl, x_mid, found, found_how = bones_at(R, origin)
         mid = 0.5 * (found["condyle_left"] + found["condyle_right"])
         new_origin = origin + R.T @ mid
         theta, used = (0.0, []) if spec is not None else _sagittal_correction(found, found_how)
@@ -414,11 +418,7 @@ def anatomical_frame(mandible: Surface, cranium: Sequence[Surface] = (), skin: S
         if abs(theta) < np.deg2rad(0.01) and moved < 0.01:
             break
     T = _transform(R, origin)
-    man, *rest = _meshes(surfaces, scale_to_mm, T, edges)
-    cran = lm.Mesh.join(rest[:len(cranium)])
-    tu, tl = rest[len(cranium) + 1], rest[len(cranium) + 2]
-    x_mid = _plane_x(n, d, R, origin) if spec is None else 0.0
-    found, found_how = lm.bone_landmarks(man, cran, tu, tl, x_mid=x_mid)
+    tu, tl, x_mid, found, found_how = bones_at(R, origin)
     if spec is None:
         cues.append(f"up and forward: directions from the condyles to {', '.join(used)} matched to the template's")
     occlusal = _occlusal_tilt(tu, tl) if tu is not None and tl is not None else None
