@@ -51,3 +51,16 @@ def test_02_jaw_and_contact(tmp_path):
     assert len(list((tmp_path / "png").glob("frame_*.png"))) == 8
     assert (tmp_path / "video.mp4").is_file() or (tmp_path / "video.gif").is_file()
     assert (tmp_path / "frames.csv").read_text().count("\n") == 9
+
+
+def test_04_editing(tmp_path):
+    ex = _load("04_editing")
+    results = ex.main(["--out", str(tmp_path), "--size", "96", "--steps", "3"])
+    assert all(eq.converged for group in results.values() for eq in group)
+    model = ex.load_model(ex.Path(ex.__file__).resolve().parent.parent / "meshes" / "face_coarse.npz")
+    scaled = [ex.corner_motion(model, eq.x) for eq in results["scale"]]
+    gained = [ex.corner_motion(model, eq.x) for eq in results["gain"]]
+    assert scaled[0] < scaled[1] <= scaled[2] + 1e-9          # activation scaling saturates at 1
+    assert gained[0] < gained[1] < gained[2]                  # the gain goes on
+    assert gained[2] > scaled[2] + 1.0                        # beyond what activation 1 can do (mm)
+    assert (tmp_path / "blend.png").is_file() and (tmp_path / "exaggeration.png").is_file()
