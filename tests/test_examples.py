@@ -64,3 +64,11 @@ def test_04_editing(tmp_path):
     assert gained[0] < gained[1] < gained[2]                  # the gain goes on
     assert gained[2] > scaled[2] + 1.0                        # beyond what activation 1 can do (mm)
     assert (tmp_path / "blend.png").is_file() and (tmp_path / "exaggeration.png").is_file()
+
+
+def test_06_dynamics(tmp_path):
+    r = _load("06_dynamics").main(["--out", str(tmp_path), "--frames", "3", "--substeps", "2", "--no-video"])
+    qs, dy = r["quasistatic"], r["dynamic"]
+    assert np.abs(qs - qs[0]).max() < 0.05        # quasistatically the shaken face only turns (mm, head frame)
+    assert r["gap_mm"] > 0.05                     # dynamically the soft nose lags
+    assert (tmp_path / "nose_path.png").is_file()
