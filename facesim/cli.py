@@ -561,10 +561,10 @@ def _fit_capture_layout(args, model, data):
     heads = [h.strip() for h in args.head_markers.split(",") if h.strip()] if args.head_markers else None
     mapping = read_marker_map(args.marker_map) if args.marker_map else None
     layout = fit_layout(model, data.names, data.P, bind, head_names=heads, marker_map=mapping,
-                        similarity=args.similarity, noise=args.noise)
+                        similarity=args.similarity, noise=args.noise, min_head=0 if args.head == "solve" else 3)
     r = layout.registration
     print(f"layout: the capture's own {len(data.names)} markers; neutral: {said}")
-    print(f"head markers ({layout.head_source}): {', '.join(layout.head)}")
+    print(f"head markers ({layout.head_source}): {', '.join(layout.head) or 'none (the head is solved)'}")
     print(f"registration to the skin: RMS {r.rms:.2f} mm, max {r.max:.2f} mm over {int(r.kept.sum())} markers "
           f"(rotation {r.summary()['rotation_deg']:.1f} deg" + (f", scale {r.scale:.4f}" if args.similarity else "")
           + ")" + (f"; {len(layout.mapped)} mapped to the model's markers" if layout.mapped else ""))

@@ -522,7 +522,7 @@ class Layout:
 
 
 def fit_layout(model: FaceModel, names, P, neutral_frames, head_names=None, marker_map=None,
-               similarity: bool = False, noise: float = 0.5) -> Layout:
+               similarity: bool = False, noise: float = 0.5, min_head: int = 3) -> Layout:
     """Register and bind a capture of its own layout (see the module doc).
 
     names : (N,) the capture's marker names; P : (F, N, 3) float64 the capture, mm, its own frame
@@ -530,6 +530,9 @@ def fit_layout(model: FaceModel, names, P, neutral_frames, head_names=None, mark
     head markers (None: from the map's model head markers, else :func:`propose_head_markers`);
     marker_map : ``{capture name: model name}``: those markers take the model's own binding, and
     with >= 3 of them seen the registration is their rigid fit onto the model's rest markers.
+    min_head : the fewest head markers the layout needs: 3 to stabilise the head by them
+    (Procrustes); 0 when the head frame is solved with the other controls (``--head solve``),
+    then fewer (or none) are taken and the neutral frames are aligned by all their markers.
     """
     from facesim.se3 import rigid_fit
 
@@ -547,8 +550,9 @@ def fit_layout(model: FaceModel, names, P, neutral_frames, head_names=None, mark
         if unknown:
             raise FacesimError(f"--head-markers: {', '.join(unknown)} not in the capture "
                                f"(it has {', '.join(names[:6])}{', ...' if len(names) > 6 else ''})")
-        if len(set(head_names)) < 3:
-            raise FacesimError(f"--head-markers: expected >= 3 head markers, got {len(set(head_names))}")
+        if len(set(head_names)) < min_head:
+            raise FacesimError(f"--head-markers: expected >= {min_head} head markers (or --head solve, which needs "
+                               f"none), got {len(set(head_names))}")
         head, source = tuple(head_names), "given"
     else:
         from_map = tuple(c for c, m in marker_map.items() if model.markers.head[model_index[m]])
@@ -556,19 +560,22 @@ def fit_layout(model: FaceModel, names, P, neutral_frames, head_names=None, mark
             head, source = from_map, "map"
         else:
             head, source = tuple(propose_head_markers(P, names, noise=noise)), "proposed"
-            if len(head) < 3:
+            if len(head) < min_head:
                 raise FacesimError("head markers: no group of >= 3 markers moves rigidly over the capture; "
-                                   "name them with --head-markers NAME,NAME,...")
+                                   "name them with --head-markers NAME,NAME,..., or solve the head (--head solve)")
     hidx = [names.index(h) for h in head]
     N = P[np.asarray(neutral_frames, bool)]
     if not len(N):
         raise FacesimError("neutral frames: none selected")
-    ref = N[0][hidx]
+    # the head may move during the neutral frames: each onto the first by its head markers (by all
+    # its markers when there are fewer than 3: the neutral face does not change)
+    align = hidx if len(hidx) >= 3 else list(range(len(names)))
+    ref = N[0][align]
     aligned = []
-    for frame in N:   # the head may move during the neutral frames: each onto the first by its head markers
-        ok = np.isfinite(frame[hidx]).all(axis=1) & np.isfinite(ref).all(axis=1)
+    for frame in N:
+        ok = np.isfinite(frame[align]).all(axis=1) & np.isfinite(ref).all(axis=1)
         if ok.sum() >= 3:
-            T = rigid_fit(frame[hidx][ok], ref[ok])
+            T = rigid_fit(frame[align][ok], ref[ok])
             frame = frame @ T[:3, :3].T + T[:3, 3]
         aligned.append(frame)
     with warnings.catch_warnings():   # a marker missing in every neutral frame stays NaN (refused)
@@ -602,7 +609,7 @@ def fit_layout(model: FaceModel, names, P, neutral_frames, head_names=None, mark
                 rows[k].update(triangle=int(tri[k]), b0=bary[k, 0], b1=bary[k, 1], b2=bary[k, 2],
                                offset_mm=float(offset[k]), role="head" if is_head[k] else "skin")
         markers = MarkerSet(markers.names, tri, bary, offset, is_head)
-    if markers.head.sum() < 3:
+    if markers.head.sum() < min(3, max(min_head, len(head))) and min_head:
         raise FacesimError(f"head markers: only {int(markers.head.sum())} of {', '.join(head)} could be bound "
                            f"({'; '.join(f'{k}: {v}' for k, v in rejected.items() if k in head)})")
     index = np.array([names.index(n) for n in markers.names], dtype=np.int64)

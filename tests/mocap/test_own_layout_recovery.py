@@ -48,7 +48,10 @@ def face():
     return load_model(FACE)
 
 
-def test_capture_of_its_own_layout_recovers_the_activations(face, tmp_path, capsys):
+@pytest.mark.parametrize("head, n_band", [("procrustes", 4), ("solve", 2)])
+def test_capture_of_its_own_layout_recovers_the_activations(face, tmp_path, capsys, head, n_band):
+    """With a 4-marker headband stabilised by Procrustes, and with only 2 headband markers (too
+    few to stabilise by) and the head solved with the other controls (--head solve)."""
     from facesim.cli import main
     from facesim.framelog import read_log
     from facesim.session import Simulation, activation_vector
@@ -65,26 +68,28 @@ def test_capture_of_its_own_layout_recovers_the_activations(face, tmp_path, caps
         X.append(f.x)
     tri, bary, band = _layout(face, rng)
     skin = np.array([np.einsum("rk,rkj->rj", bary, x[face.skin[tri]]) for x in X])
-    P = np.concatenate([skin, np.broadcast_to(band, (len(X), 4, 3))], axis=1)
+    P = np.concatenate([skin, np.broadcast_to(band[:n_band], (len(X), n_band, 3))], axis=1)
     centre = face.X[face.cranium_nodes].mean(axis=0)
     for k in range(len(P)):   # a known head motion: up to ~1.7 deg and 3 mm
         R = Rotation.from_rotvec([0.03 * np.sin(k), -0.02 * k / 3, 0.01]).as_matrix()
         P[k] = (P[k] - centre) @ R.T + centre + [1.0 * k, -0.5, 3.0 * np.sin(k)]
     P = P @ TO_CAPTURE.T + [900.0, -300.0, 1600.0] + rng.normal(0.0, 0.1, P.shape)
     P[3, 7] = np.nan   # a gap
-    names = [f"m{i:02d}" for i in range(len(tri))] + ["band_a", "band_b", "band_c", "band_d"]
+    bands = ["band_a", "band_b", "band_c", "band_d"][:n_band]
+    names = [f"m{i:02d}" for i in range(len(tri))] + bands
     assert not set(names) & set(face.markers.names)
     write_markers_csv(tmp_path / "cap.csv", np.arange(len(P)), names, P / 1000.0)   # metres
     out = tmp_path / "out"
     code = main(["solve-mocap", "--model", str(FACE), "--markers", str(tmp_path / "cap.csv"), "-o", str(out),
-                 "--layout", "capture", "--head-markers", "band_a,band_b,band_c,band_d", "--bind-frames", "0:1",
-                 "--no-contact", "--noise", "0.1", "-q"])
+                 "--layout", "capture", "--head-markers", ",".join(bands), "--bind-frames", "0:1",
+                 "--no-contact", "--noise", "0.1", "--head", head, "-q"])
     printed = capsys.readouterr().out
     assert code == 0, printed
     with open(out / "markers_placed.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["name"] for r in rows] == names                      # every marker placed, none refused
-    assert [r["role"] for r in rows] == ["skin"] * len(tri) + ["head"] * 4
+    assert [r["role"] for r in rows] == ["skin"] * len(tri) + ["head"] * n_band
+    assert (out / "head.csv").is_file() == (head == "solve")
     assert max(float(r["distance_mm"]) for r in rows if r["role"] == "skin") < 1.0
     with open(out / "frames.csv") as fh:
         log = list(csv.DictReader(fh))
@@ -93,7 +98,9 @@ def test_capture_of_its_own_layout_recovers_the_activations(face, tmp_path, caps
     driven = [i for i, m in enumerate(face.muscles.names) if any(m.startswith(d) for d in DRIVEN)]
     assert len(driven) == 4 and A[-1, driven].min() > 0.3   # both sides of both muscles, truly driven
     error = np.abs(got[:, 1:] - A)
-    assert error[:, driven].max() < TOL_ACTIVATION, error[:, driven]
+    # two markers fewer, and the head's pose taken from markers that also carry the expression
+    tol = TOL_ACTIVATION if head == "procrustes" else 1.5 * TOL_ACTIVATION
+    assert error[:, driven].max() < tol, error[:, driven]
     _, jaw = read_log(out / "jaw.csv")
     assert np.abs(jaw[:, 1] - opening).max() < TOL_JAW, jaw[:, 1]
     _, res = read_log(out / "residuals.csv")
