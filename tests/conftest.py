@@ -142,3 +142,20 @@ def one_numba_thread():
     numba.set_num_threads(1)
     yield
     numba.set_num_threads(before)
+
+
+def interrupt_frame_solves(monkeypatch, at: int = 3) -> None:
+    """Make ``facesim.inverse.tracking._solve_frame`` raise KeyboardInterrupt on its ``at``-th call
+    (an interrupted run); ``monkeypatch.undo()`` restores it."""
+    from facesim.inverse import tracking
+
+    solve = tracking._solve_frame
+    calls = []
+
+    def interrupted(*args):
+        calls.append(args)
+        if len(calls) == at:
+            raise KeyboardInterrupt
+        return solve(*args)
+
+    monkeypatch.setattr(tracking, "_solve_frame", interrupted)

@@ -8,13 +8,12 @@ from facesim.controls import Controls, rotation_about
 from facesim.controls_io import read_head_poses
 from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
 from facesim.fem.newton import NewtonOptions
-from facesim.inverse import tracking
 from facesim.inverse.gauss_newton import FitOptions, fit_frame
 from facesim.inverse.head_frame import HeadFrame
 from facesim.inverse.tracking import TrackOptions, track
 from facesim.kinematics.condyle import SlidingCondyleJaw
 from facesim.model import MarkerSet
-from tests.conftest import one_numba_thread
+from tests.conftest import interrupt_frame_solves, one_numba_thread
 
 DIRECT = EquilibriumOptions(newton=NewtonOptions(linear_solver="direct", rtol=1e-8))
 
@@ -140,17 +139,8 @@ def test_head_solve_resumes_to_the_uninterrupted_result(spread, tmp_path, monkey
     options = TrackOptions(fit=FitOptions(noise=0.01, max_steps=6), head="solve")
     whole = tmp_path / "whole"
     track(sim, np.arange(4), P, whole, options=options, progress=False)
-    solve = tracking._solve_frame
-    calls = []
-
-    def interrupted_at_third_frame(*args):
-        calls.append(args)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-        return solve(*args)
-
     cut = tmp_path / "cut"
-    monkeypatch.setattr(tracking, "_solve_frame", interrupted_at_third_frame)
+    interrupt_frame_solves(monkeypatch, at=3)
     with pytest.raises(KeyboardInterrupt):
         track(sim, np.arange(4), P, cut, options=options, progress=False)
     monkeypatch.undo()

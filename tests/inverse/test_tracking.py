@@ -18,6 +18,8 @@ from facesim.inverse.tracking import TrackOptions, fit_markers, loss_weights, tr
 from facesim.kinematics.condyle import SlidingCondyleJaw
 from facesim.model import MarkerSet
 
+from tests.conftest import interrupt_frame_solves
+
 DIRECT = EquilibriumOptions(newton=NewtonOptions(linear_solver="direct", rtol=1e-8))
 #: 4 frames in chunks of 2, with few Gauss-Newton steps: the parallel tests compare runs, not recovery
 CHUNKED = TrackOptions(fit=FitOptions(noise=0.01, max_steps=2, golden_tolerance=0.3), head="none", chunk_size=2)
@@ -54,16 +56,7 @@ def test_track_recovers_a_sequence_and_writes_every_frame(sequence, box_model, t
 def test_resume_continues_after_the_last_written_frame(sequence, box_model, tmp_path, monkeypatch):
     sim, truth, P = sequence
     options = TrackOptions(fit=FitOptions(noise=0.01), head="none")
-    solve = tracking._solve_frame
-    calls = []
-
-    def interrupted_at_third_frame(*args):
-        calls.append(args)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-        return solve(*args)
-
-    monkeypatch.setattr(tracking, "_solve_frame", interrupted_at_third_frame)
+    interrupt_frame_solves(monkeypatch, at=3)
     with pytest.raises(KeyboardInterrupt):
         track(sim, np.arange(4), P, tmp_path, options=options, progress=False)
     monkeypatch.undo()
