@@ -190,6 +190,19 @@ def read_solution(out_dir, model) -> tuple[np.ndarray, list[Controls]]:
     return np.array(frames, dtype=np.int64), controls
 
 
+#: columns of head.csv after ``frame``: the rigid head pose (the model's head frame -> the capture's, mm)
+#: and the strain of the frame it was solved as (0 for a pose given rigid)
+HEAD_COLUMNS = ("r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "tx", "ty", "tz", "strain")
+
+
+def head_pose(values) -> np.ndarray:
+    """The 4x4 pose of one head.csv row's values after ``frame`` (:data:`HEAD_COLUMNS`: R row-major, t)."""
+    v = np.asarray(values, dtype=np.float64)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = v[:9].reshape(3, 3), v[9:12]
+    return T
+
+
 def read_head_poses(out_dir) -> dict[int, np.ndarray]:
     """The head poses ``OUT/head.csv`` of a ``solve-mocap --head solve`` run holds: frame -> 4x4
     rigid transform (the model's head frame -> the capture's); empty when the run did not solve
@@ -198,16 +211,10 @@ def read_head_poses(out_dir) -> dict[int, np.ndarray]:
     if not path.is_file():
         return {}
     header, H = read_log(path)
-    if len(header) < 13 or header[1:13] != ["r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22",
-                                             "tx", "ty", "tz"]:
+    if len(header) < 13 or header[1:13] != list(HEAD_COLUMNS[:12]):
         raise FacesimError(f"{path}: columns {','.join(header[1:])}; expected 'frame,r00,...,r22,tx,ty,tz,strain' "
                            "as solve-mocap --head solve writes")
-    out = {}
-    for row in H:
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = row[1:10].reshape(3, 3), row[10:13]
-        out[int(row[0])] = T
-    return out
+    return {int(row[0]): head_pose(row[1:13]) for row in H}
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,7 @@ import numpy as np
 
 from facesim import se3
 from facesim._files import atomic_write
+from facesim.controls_io import HEAD_COLUMNS
 from facesim.errors import FacesimError
 from facesim.framelog import csv_line
 
@@ -55,7 +56,6 @@ FILES = ("activations.csv", "jaw.csv", "head.csv", "gain.csv", "report.json")
 SIM_FOLDER = "sim"
 #: frame rate assumed for sources that do not record one (solve-mocap folders, CSV files), Hz
 DEFAULT_FPS = 30.0
-_HEAD_COLUMNS = ("r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "tx", "ty", "tz", "strain")
 
 
 # ------------------------------------------------------------------ the jaw model of a sequence
@@ -496,7 +496,7 @@ def write_sequence(folder, seq: ControlsSequence, model=None, *, overwrite: bool
         if seq.head is not None:
             H = seq.head
             values = np.concatenate([H[:, :3, :3].reshape(-1, 9), H[:, :3, 3], np.zeros((seq.n_frames, 1))], axis=1)
-            _write_csv(folder / "head.csv", ["frame", *_HEAD_COLUMNS], seq.frames, values)
+            _write_csv(folder / "head.csv", ["frame", *HEAD_COLUMNS], seq.frames, values)
         else:
             (folder / "head.csv").unlink(missing_ok=True)
         if (seq.gain != 1.0).any():

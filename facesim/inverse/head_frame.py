@@ -28,9 +28,6 @@ import numpy as np
 from facesim.errors import FacesimError
 from facesim.kinematics.frames import N_FRAME, rigidity_penalty
 
-#: columns of head.csv: the rigid head pose (model -> capture) of each frame and the solved frame's strain
-HEAD_COLUMNS = ("r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "tx", "ty", "tz", "strain")
-
 
 class HeadFrame:
     """The skull's affine frame as unknowns of a fit: ``world = M (p - centre) + centre + t``.
@@ -117,4 +114,4 @@ class HeadFrame:
         return self.weight * v, self.weight * g, self.weight * H
 
 
-__all__ = ["HEAD_COLUMNS", "HeadFrame"]
+__all__ = ["HeadFrame"]

@@ -89,7 +89,8 @@ from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
-from facesim.inverse.head_frame import HEAD_COLUMNS, HeadFrame
+from facesim.controls_io import HEAD_COLUMNS, head_pose
+from facesim.inverse.head_frame import HeadFrame
 from facesim.fem.linear import make_linear_solver, single_blas_thread
 from facesim.fem.newton import Problem
 from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, default_jacobian_solver
@@ -345,7 +346,7 @@ def initial_head_frame(model, target) -> np.ndarray:
 
 def _head_line(k: int, model, T) -> str:
     """Frame ``k``'s line of ``head.csv``: the rigid head pose nearest the solved frame ``T`` and
-    the frame's strain (:data:`~facesim.inverse.head_frame.HEAD_COLUMNS`)."""
+    the frame's strain (:data:`facesim.controls_io.HEAD_COLUMNS`)."""
     hf = HeadFrame.of(model)
     R, strain = hf.rigid(hf.coefficients(T))
     return csv_line([k, *(f"{v:.9g}" for v in R[:3, :3].ravel()), *(f"{v:.6f}" for v in R[:3, 3]), f"{strain:.3e}"])
@@ -500,10 +501,7 @@ class _Outputs:
         """The head pose written for frame ``k`` (4x4; None when the run does not solve the head)."""
         if HEAD_LOG not in self.names:
             return None
-        v = np.array([float(v) for v in next(csv.reader([self.done[k][self.names.index(HEAD_LOG)]]))[1:13]])
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = v[:9].reshape(3, 3), v[9:]
-        return T
+        return head_pose([float(v) for v in next(csv.reader([self.done[k][self.names.index(HEAD_LOG)]]))[1:13]])
 
 
 # ------------------------------------------------------------------ sequences
