@@ -452,12 +452,6 @@ def template_landmarks(template) -> dict:
     return found
 
 
-def _vertex_normals(V, F) -> np.ndarray:
-    n = np.zeros_like(V)
-    np.add.at(n, F.ravel(), np.repeat(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), 3, axis=0))
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-
-
 def surface_pairs(template_surface, subject_surface, warp, spacing=REFINE_SPACING_MM, max_mm=REFINE_MAX_MM):
     """Correspondences ``(template points (k, 3), subject points (k, 3))`` between two surfaces
     ``(V, F)`` mm, for refining ``warp``: the template's vertices thinned to one per ``spacing``
@@ -465,15 +459,15 @@ def surface_pairs(template_surface, subject_surface, warp, spacing=REFINE_SPACIN
     warped and paired with the nearest subject vertex when that is within ``max_mm``, its normal
     agrees (cosine > 0.5) and it is not on an open edge of the subject's surface (a face mask's
     rim: what lies beyond it, the subject lacks); a subject vertex pairs once (its nearest)."""
-    from facesim.importing.meshes import boundary_loops
+    from facesim.importing.meshes import boundary_loops, vertex_normals
 
     (Vt, Ft), (Vs, Fs) = template_surface, subject_surface
     used = np.unique(Ft)
     _, first = np.unique(np.floor(Vt[used] / spacing).astype(np.int64), axis=0, return_index=True)
     pick = used[np.sort(first)]
     W = warp(Vt[pick])
-    nw = _vertex_normals(warp(Vt), Ft)[pick]
-    ns = _vertex_normals(Vs, Fs)
+    nw = vertex_normals(warp(Vt), Ft)[pick]
+    ns = vertex_normals(Vs, Fs)
     rim = np.zeros(len(Vs), bool)
     for loop in boundary_loops(np.asarray(Fs, dtype=np.int64)):
         rim[loop] = True
@@ -503,7 +497,8 @@ def refined_warp(template, landmarks, X, skin, mandible=None, crania=(), iterati
         pairs.append(((bone["jaw"].vertices, bone["jaw"].faces), (mandible.vertices, mandible.faces)))
     if crania and "cranium" in bone:
         pairs.append(((bone["cranium"].vertices, bone["cranium"].faces), _merged(crania)))
-    report = {"landmark_rms_mm": round(float(np.sqrt(np.mean(warp.landmark_error() ** 2))), 3), "iterations": []}
+    report = {"landmarks_used": sorted(set(src) & set(landmarks)),
+              "landmark_rms_mm": round(float(np.sqrt(np.mean(warp.landmark_error() ** 2))), 3), "iterations": []}
     # where the warp must not fold: the template's muscles and its skin (what is carried over)
     domain = template.X[np.unique(np.r_[template.tets[template.muscles.tet].ravel(), template.skin.ravel()])]
     for _ in range(iterations):
@@ -531,7 +526,6 @@ def carry_template(template, X, T, skin, landmarks, mandible=None, crania=()):
     MarkerSet, tissue (m,) int32, report)``."""
     from facesim.importing.template import _TetLocator, transfer_markers, transfer_muscles
 
-    src = template_landmarks(template)
     warp, refine = refined_warp(template, landmarks, X, skin, mandible, crania)
     muscles, mrep = transfer_muscles(template, warp, X, T)
     markers, krep = transfer_markers(template, warp, X, skin)
@@ -541,7 +535,7 @@ def carry_template(template, X, T, skin, landmarks, mandible=None, crania=()):
     tet, _ = _TetLocator(template.X, template.tets, 1.0).locate(P)
     flesh = 0
     tissue = np.where(tet >= 0, template.tissue[np.maximum(tet, 0)], flesh).astype(np.int32)
-    report = {"landmarks_used": sorted(set(src) & set(landmarks)), "refinement": refine,
+    report = {"landmarks_used": refine.pop("landmarks_used"), "refinement": refine,
               "muscles": {"flagged": mrep.get("flagged", {}), "per_muscle": mrep.get("muscles", {})},
               "markers": {"dropped": krep.get("dropped", {})},
               "tissues": {t.name: int((tissue == i).sum()) for i, t in enumerate(template.tissues)}}

@@ -87,6 +87,14 @@ def _cross_faces(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
 
 
+def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(n, 3) unit vertex normals of the surface ``(V, F)``: the area-weighted mean of the faces'
+    normals (zero at unused vertices)."""
+    vn = np.zeros_like(np.asarray(V, dtype=np.float64))
+    np.add.at(vn, np.asarray(F).ravel(), np.repeat(_cross_faces(V, F), 3, axis=0))
+    return _unit(vn)
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return v / np.where(n > 0, n, 1.0)
@@ -603,9 +611,7 @@ def sample_surface(surface: Surface, spacing: float, scale: float = 1.0, seed: i
     cross = _cross_faces(V, F)
     area = 0.5 * np.linalg.norm(cross, axis=1)
     nf = _unit(cross)
-    vn = np.zeros_like(V)
-    np.add.at(vn, F.ravel(), np.repeat(cross, 3, axis=0))
-    vn = _unit(vn)
+    vn = vertex_normals(V, F)
     k = int(min(max_points, np.ceil(area.sum() / (spacing * spacing))))
     rng = np.random.default_rng(seed)
     if k > 0 and area.sum() > 0:
