@@ -383,10 +383,14 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         """Marker motion ``(k,)`` of the kept coordinates from the marker positions ``start`` (head frame)."""
         return (model.marker_positions(x) - start).ravel()[rows]
 
+    def in_targets(Ph, c):
+        """Head-frame marker positions ``Ph (r, 3)`` in the targets' frame: moved by the head frame
+        when it is solved."""
+        return Ph if head is None else head.apply(Ph, c[nc:])
+
     def markers(x, c):
-        """Marker positions ``(r, 3)`` in the targets' frame: moved by the head frame when it is solved."""
-        P = model.marker_positions(x)
-        return P if head is None else head.apply(P, c[nc:])
+        """Marker positions ``(r, 3)`` of the equilibrium ``x`` in the targets' frame."""
+        return in_targets(model.marker_positions(x), c)
 
     def marker_jacobian(J, x, c):
         """``(3r, len(c))`` derivative of :func:`markers` from the equilibrium's ``J``."""
@@ -450,8 +454,8 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     mu = 0.0
     F = objective(c, x, mu)
     rep.objective.append(F)
-    P = markers(x, c)                  # in the targets' frame
     Ph = model.marker_positions(x)     # in the head frame (the equilibrium's Jacobian's)
+    P = in_targets(Ph, c)              # in the targets' frame
 
     def small(dc, F, predicted) -> bool:
         """The stopping rule: the next step would change the objective (or the controls) too little."""
@@ -527,7 +531,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             clock["jacobian"] += time.perf_counter() - t
             improvement = (F - F_new) / max(F, 1e-300)
             c, x, F, Ph = c + step, x_new, F_new, Ph_new
-            P = markers(x, c)
+            P = in_targets(Ph, c)
             rep.objective.append(F)
             if improvement < options.tolerance or np.abs(step).max() < options.step_tolerance:
                 stop = "converged"
