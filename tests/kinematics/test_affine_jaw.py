@@ -4,7 +4,6 @@ Gauss-Newton fit that recovers a sliding-condyle pose from exact markers."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,15 +18,9 @@ from facesim.kinematics.affine_jaw import AffineCondyleJaw, default_weights
 from facesim.kinematics.condyle import SlidingCondyleJaw, _rotation
 from facesim.kinematics.frames import frame_to_matrix, psd_project
 from facesim.kinematics.jaw_models import JAW_MODELS, JawModel, make_jaw_model
-from facesim.model import load_model
 from tests.kinematics.test_frames import central_gradient, central_jacobian
 
-MODEL = Path(__file__).resolve().parents[2] / "meshes" / "face_coarse.npz"
 
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model(MODEL)
 
 
 @pytest.fixture(scope="module")

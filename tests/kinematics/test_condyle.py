@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,15 +11,9 @@ from facesim.kinematics.jaw_models import RigidJaw
 from facesim.errors import FacesimError
 from facesim.kinematics.condyle import KinematicTerm, SlidingCondyleJaw
 from facesim.kinematics.frames import matrix_to_frame
-from facesim.model import load_model
 from tests.kinematics.test_frames import central_gradient, central_jacobian
 
-MODEL = Path(__file__).resolve().parents[2] / "meshes" / "face_coarse.npz"
 
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model(MODEL)
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from facesim.controls import Controls
 from facesim.fem.equilibrium import FaceSimulator
 from facesim.kinematics.frames import matrix_to_frame
 from facesim.model import signed_volumes
-from tests.kinematics.test_condyle import apply, jaw, model  # noqa: F401  (the shipped model and its jaw)
+from tests.kinematics.test_condyle import apply, jaw  # noqa: F401  (its jaw fixture; the model is conftest's)
 
 OPENING = 0.5   # rad, ~29 degrees: past the pure hinge (~0.16 rad), short of the maximum 0.62
 

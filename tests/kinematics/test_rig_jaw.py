@@ -5,7 +5,6 @@ import pytest
 
 from facesim import se3
 from facesim.errors import FacesimError
-from facesim.jaw._shipped import shipped_model
 from facesim.jaw.classic import fit_classic
 from facesim.jaw.frame import JawFrame
 from facesim.jaw.motion import JawMotion
@@ -14,10 +13,6 @@ from facesim.jaw.points import front_weights, mandible_points
 from facesim.jaw.posselt import CURVES, fit_posselt
 from facesim.kinematics.rig_jaw import RigJaw, rig_jaw_from_spec
 
-
-@pytest.fixture(scope="module")
-def model():
-    return shipped_model()
 
 
 @pytest.fixture(scope="module")
