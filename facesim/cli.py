@@ -366,9 +366,25 @@ def cmd_simulate(args) -> int:
         check_same_frames(args.jaw, jaw_frames, args.activations, frames)
     colliders = _colliders(args, Path(args.activations).parent)   # simulate() checks poses and colliders
     options = _simulate_options(args, model)
+    head = _head_motion(args, frames, args.activations)
     info = {"model": str(args.model), "activations": str(args.activations),
-            "jaw": str(args.jaw) if args.jaw else None, "collider_specs": list(args.collider)}
-    return _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info)
+            "jaw": str(args.jaw) if args.jaw else None, "collider_specs": list(args.collider),
+            "head": None if head is None else str(args.head)}
+    return _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, head=head)
+
+
+def _head_motion(args, frames, reference, default=None):
+    """simulate --head: the head poses ``(F, 4, 4)`` of the file (its frames those of
+    ``reference``), None for ``--head rest``, or ``default`` (a path) when --head is not given."""
+    from facesim.controls_io import check_same_frames, read_head_csv
+
+    path = args.head if args.head is not None else default
+    if path is None or path == "rest":
+        return None
+    head_frames, H = read_head_csv(path)
+    check_same_frames(path, head_frames, reference, frames)
+    args.head = str(path)
+    return H
 
 
 def _simulate_options(args, model, teeth: bool = False, lips: bool = False, stiffness=None):
@@ -406,15 +422,20 @@ def _simulate_solved(args, model) -> int:
             "activations": str(Path(args.controls_from) / "activations.csv"),
             "jaw": str(Path(args.controls_from) / "jaw.csv") if r.jaw is not None else None,
             "collider_specs": list(args.collider)}
-    return _run_simulate(args, model, r.A, r.frames, r.jaw, r.jaw_model, colliders, options, info, gain=r.gain)
+    solved = Path(args.controls_from) / "head.csv"
+    head = _head_motion(args, r.frames, Path(args.controls_from) / "activations.csv",
+                        solved if solved.is_file() else None)
+    info["head"] = None if head is None else str(args.head)
+    return _run_simulate(args, model, r.A, r.frames, r.jaw, r.jaw_model, colliders, options, info, gain=r.gain,
+                         head=head)
 
 
-def _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, gain=None) -> int:
+def _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, gain=None, head=None) -> int:
     from facesim.simulate import simulate
 
     s = simulate(model, A, args.output, frames=frames, jaw=T, jaw_model=jaw_model, colliders=colliders,
                  options=options, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, info=info,
-                 gain=gain)
+                 gain=gain, head=head)
     reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
     print(f"simulated {s['frames']} frames ({s['converged']} of {s['finished_frames']} converged{reused}) in "
           f"{s['wall_seconds']:.1f} s -> {args.output}")
@@ -860,10 +881,18 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--activations", metavar="A.csv", help="muscle activations per frame (or --controls-from)")
     simulate.add_argument("--jaw", metavar="J.csv", help="jaw pose per frame (default: jaw at rest)")
     simulate.add_argument("--controls-from", metavar="OUT_DIR",
-                          help="simulate the frames a solve-mocap run solved: OUT_DIR/activations.csv and jaw.csv "
-                               "with the jaw model and contact set-up the run recorded, in the model frame (the "
-                               "solve stabilised the head); the run must have been solved with this --model; "
-                               "excludes --activations, --jaw and --jaw-model")
+                          help="simulate the frames a solve-mocap run (or facesim edit) wrote: OUT_DIR/activations.csv "
+                               "and jaw.csv with the jaw model and contact set-up the run recorded, and its head.csv "
+                               "(solve-mocap --head solve) as head motion unless --head rest; without head.csv in the "
+                               "model frame (the solve stabilised the head); the run must have been solved with this "
+                               "--model; excludes --activations, --jaw and --jaw-model")
+    simulate.add_argument("--head", metavar="H.csv|rest",
+                          help="head motion per frame, the skull's rigid pose in the world: "
+                               "'frame,r00,r01,r02,r10,r11,r12,r20,r21,r22,tx,ty,tz' (R row-major, t in mm; a "
+                               "strain column is ignored), the same frames as the activations; the format "
+                               "solve-mocap --head solve writes to head.csv. The bones move with it (moving Dirichlet "
+                               "conditions; with --dynamic the flesh lags and swings: a head shake). 'rest': a fixed "
+                               "head even when --controls-from OUT_DIR has a head.csv (default: fixed head)")
     simulate.add_argument("--jaw-model", default=None,
                           metavar="{rigid,sliding-condyle,affine-condyle,posselt,posselt:RIG.npz,nlpca:RIG.npz}",
                           help="how J.csv describes the jaw: rigid (frame,rx,ry,rz,tx,ty,tz or frame,opening), "

@@ -203,6 +203,31 @@ def head_pose(values) -> np.ndarray:
     return T
 
 
+def read_head_csv(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a head-motion CSV (``frame,r00,...,r22,tx,ty,tz[,strain]``: :data:`HEAD_COLUMNS`, the
+    skull's rigid pose in the world per frame, R row-major then t in mm; what ``solve-mocap --head
+    solve`` writes to ``head.csv``). Returns ``frames (F,) int64`` (increasing) and ``H (F, 4, 4)``.
+    One-line errors name the file, line and column: a missing column, a value that is not a finite
+    number, a rotation that is not one (naming the row). Rotations written with few digits
+    (orthonormal within 1e-3) are taken as the nearest rotation."""
+    from facesim import se3
+
+    table = read_table(path, "head file", example="frame," + ",".join(HEAD_COLUMNS))
+    missing = [c for c in HEAD_COLUMNS[:12] if c not in table.header]
+    if missing:
+        raise FacesimError(f"{table.path}: line {table.header_line}: column {missing[0]!r} missing; expected "
+                           f"'frame,{','.join(HEAD_COLUMNS)}' (strain optional)")
+    values = numbers(table, HEAD_COLUMNS[:12])
+    H = np.array([head_pose(v) for v in values])
+    try:
+        se3.check_rigid(H, "head", tolerance=1e-3)
+    except FacesimError as exc:
+        raise FacesimError(f"{table.path}: {exc}") from None
+    U, _, Vt = np.linalg.svd(H[:, :3, :3])
+    H[:, :3, :3] = U @ Vt          # det +1: check_rigid refused reflections
+    return frame_numbers(table), H
+
+
 def read_head_poses(out_dir) -> dict[int, np.ndarray]:
     """The head poses ``OUT/head.csv`` of a ``solve-mocap --head solve`` run holds: frame -> 4x4
     rigid transform (the model's head frame -> the capture's); empty when the run did not solve
@@ -210,11 +235,8 @@ def read_head_poses(out_dir) -> dict[int, np.ndarray]:
     path = Path(out_dir) / "head.csv"
     if not path.is_file():
         return {}
-    header, H = read_log(path)
-    if len(header) < 13 or header[1:13] != list(HEAD_COLUMNS[:12]):
-        raise FacesimError(f"{path}: columns {','.join(header[1:])}; expected 'frame,r00,...,r22,tx,ty,tz,strain' "
-                           "as solve-mocap --head solve writes")
-    return {int(row[0]): head_pose(row[1:13]) for row in H}
+    frames, H = read_head_csv(path)
+    return {int(k): T for k, T in zip(frames, H)}
 
 
 @dataclass(frozen=True)

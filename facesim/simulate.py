@@ -334,10 +334,10 @@ def _gain(model: FaceModel, gain) -> np.ndarray | None:
     return None if (g == 1.0).all() else g
 
 
-def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None, dynamics=None, fps=None) -> dict:
+def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None, dynamics=None, fps=None, head=None) -> dict:
     """The run record's inputs (:mod:`facesim.runfolder`): what the results depend on. The gain
-    only when there is one and the integration options (with the frame rate) only in a dynamic
-    run, so the record of a quasistatic run without gain reads as before."""
+    and the head motion only when there are some and the integration options (with the frame
+    rate) only in a dynamic run, so the record of a quasistatic run without them reads as before."""
     inputs = {"model": parts(model), "activations": fingerprint(A), "frames": fingerprint(frames),
               "jaw": fingerprint(np.ascontiguousarray(J)),
               "jaw_model": {"name": jaw_model.name, "content": fingerprint(jaw_model)}, "simulator": describe(setup)}
@@ -345,6 +345,8 @@ def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None, dynamic
         inputs["gain"] = fingerprint(gain)
     if dynamics is not None:
         inputs["dynamics"] = {**describe(dynamics), "fps": fps}
+    if head is not None:
+        inputs["head"] = fingerprint(np.ascontiguousarray(head))
     return inputs
 
 
@@ -367,7 +369,7 @@ def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, capt
 
 def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, jaw_model="rigid", colliders=(),
              options: SimulateOptions | None = None, resume: bool = False, overwrite: bool = False,
-             progress: bool = True, info: dict | None = None, gain=None) -> dict:
+             progress: bool = True, info: dict | None = None, gain=None, head=None) -> dict:
     """Simulate a sequence of frames and write the results into ``out_dir`` (see the module doc).
 
     Parameters
@@ -393,6 +395,10 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         (Sifakis 2005 Fig. 8: exaggeration beyond what activation 1 reaches); None or all 1: the
         muscles as built. Recorded in ``run.json`` (a resume with another gain is refused) and
         ``report.json`` (``gain``: the muscles whose gain is not 1).
+    head : ``(F, 4, 4)`` rigid transforms of the skull in the world per frame (mm; the mandible
+        moves with it, posed relative to it by ``jaw``), or None for a fixed head: moving Dirichlet
+        conditions on the bones (Sifakis 2005 section 9's head shake; what ``solve-mocap --head
+        solve`` writes to ``head.csv``). Markers and meshes are written in the world.
 
     With ``options.dynamic`` the frames are integrated in time (see the module doc and
     :mod:`facesim.fem.dynamics`).
@@ -411,6 +417,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
                                contact_stiffness=options.contact_stiffness)   # checked before anything runs
     jaw_model = make_jaw_model(model, jaw_model)
     A, frames, J = _validate(model, activations, frames, jaw, jaw_model)
+    H = _head(head, len(A))
     gain = _gain(model, gain)
     # what no solve could balance is refused before any (facesim.fem.plausible), naming the input
     # files the caller recorded in ``info`` (the CLI's --jaw file, its --collider specs)
@@ -446,16 +453,28 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     out = _Out(out_dir)
     folder = RunFolder(out.root, "simulate", resume, overwrite)
     with folder:   # one run at a time in the folder, from here until report.json is written
-        folder.start(_inputs(model, A, frames, J, jaw_model, setup, gain, dynamics, options.fps), out.holds_a_run,
+        folder.start(_inputs(model, A, frames, J, jaw_model, setup, gain, dynamics, options.fps, H), out.holds_a_run,
                      out.clear,
                      info={**(info or {}), "model_fingerprint": fingerprint(model)})
         gains = None if gain is None else {n: float(g) for n, g in zip(model.muscles.names, gain) if g != 1.0}
         return _run(out, model, A, frames, J, jaw is not None, jaw_model, colliders, options, resume, progress,
-                    {**(info or {}), "gain": gains}, simulation)
+                    {**(info or {}), "gain": gains, "head_motion": H is not None}, simulation, H)
+
+
+def _head(head, n: int):
+    """``head`` of :func:`simulate` checked: None, or ``(n, 4, 4)`` rigid transforms."""
+    if head is None:
+        return None
+    from facesim import se3
+
+    H = np.asarray(head, dtype=np.float64)
+    if H.shape != (n, 4, 4):
+        raise FacesimError(f"head: expected {n} 4x4 rigid transforms (one per frame), got shape {H.shape}")
+    return se3.check_poses(H, "head")
 
 
 def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, colliders, options: SimulateOptions,
-         resume: bool, progress: bool, info: dict | None, simulation) -> dict:
+         resume: bool, progress: bool, info: dict | None, simulation, H=None) -> dict:
     """The frames of :func:`simulate` in a claimed folder: the reused ones redrawn where needed, the
     others solved and written; returns the summary."""
     from tqdm import tqdm
@@ -496,14 +515,25 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
     # as in an uninterrupted run)
     converged_before = [r["frame"] for r in rows if r["converged"]]
     x_warm = _load_x(out, converged_before[-1], model) if converged_before else None
+    # under head motion the warm start is carried along with the head (the previous frame's shape
+    # in the new head pose), not left where the head was
+    i_warm = int(np.searchsorted(frames, converged_before[-1])) if converged_before else None
+
+    def warm(i):
+        if x_warm is None or H is None:
+            return x_warm
+        M = H[i] @ np.linalg.inv(H[i_warm])
+        return x_warm @ M[:3, :3].T + M[:3, 3]
     # a dynamic run goes on from the state of the last complete frame, converged or not (None: the
     # first frame starts at rest from its quasistatic equilibrium)
-    state = _load_dynamic_state(out, model, int(frames[n_done - 1]), A[n_done - 1],
-                                J[n_done - 1] if posed_jaw else None) if options.dynamic and n_done else None
+    jaw_at = (lambda i: J[i]) if posed_jaw else (lambda i: None)
+    head_at = (lambda i: H[i]) if H is not None else (lambda i: None)
+    state = _load_dynamic_state(out, model, int(frames[n_done - 1]), A[n_done - 1], jaw_at(n_done - 1),
+                                head_at(n_done - 1)) if options.dynamic and n_done else None
     for i, k in enumerate(map(int, frames[:n_done])):   # files derived from complete frames' states: redraw missing
         skin, png = not out.skin(k).is_file(), options.render and not out.png(k).is_file()
         if skin or png:
-            posed = simulation().posed_colliders(k, Controls(A[i], jaw=J[i] if posed_jaw else None)) \
+            posed = simulation().posed_colliders(k, Controls(A[i], jaw=jaw_at(i), head=head_at(i))) \
                 if png and colliders else ()
             _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed, a=A[i])
 
@@ -517,11 +547,10 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
                 t0 = time.perf_counter()
                 extra = None
                 if options.dynamic:
-                    f, state, n_steps = _dynamic_frame(simulation(), state, A[i], J[i] if posed_jaw else None, k,
-                                                       options)
+                    f, state, n_steps = _dynamic_frame(simulation(), state, A[i], jaw_at(i), k, options, head_at(i))
                     extra = {key: v for key, v in state.arrays().items() if key != "x"}
                 else:
-                    f = simulation().step(A[i], jaw=J[i] if posed_jaw else None, frame=k, x0=x_warm)
+                    f = simulation().step(A[i], jaw=jaw_at(i), head=head_at(i), frame=k, x0=warm(i))
                 x, converged = f.x, f.converged
                 seconds = f.seconds if f.report is not None else time.perf_counter() - t0
                 write_frame(out.root, model, k, x, A[i], J[i], converged, f.error, extra)
@@ -535,7 +564,7 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
                 frame_log.add(_row_line(row, columns))   # last: the frame is complete once this row is on disk
                 rows.append(row)
                 if converged:
-                    x_warm = x
+                    x_warm, i_warm = x, i
                 bar.set_postfix(iterations=row["iterations"], converged=converged, refresh=False)
                 bar.update(1)
         status = "complete"
@@ -571,7 +600,7 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
     return summary
 
 
-def _load_dynamic_state(out: _Out, model: FaceModel, k: int, a, jaw):
+def _load_dynamic_state(out: _Out, model: FaceModel, k: int, a, jaw, head=None):
     """The :class:`~facesim.fem.dynamics.DynamicState` a dynamic run left after frame ``k`` (its
     state file at full precision: the integration goes on exactly as it would have)."""
     from facesim.controls import Controls
@@ -580,13 +609,13 @@ def _load_dynamic_state(out: _Out, model: FaceModel, k: int, a, jaw):
     _load_x(out, k, model)   # the model's shape
     try:
         with np.load(out.state(k)) as z:
-            return DynamicState.from_arrays(z, Controls(a, jaw=jaw), k)
+            return DynamicState.from_arrays(z, Controls(a, jaw=jaw, head=head), k)
     except KeyError:
         raise FacesimError(f"{out.state(k)}: no velocities (v, x_prev, v_prev, h_prev): not the state of a dynamic "
                            "run; use --overwrite") from None
 
 
-def _dynamic_frame(dyn, state, a, jaw, k: int, options: SimulateOptions):
+def _dynamic_frame(dyn, state, a, jaw, k: int, options: SimulateOptions, head=None):
     """Frame ``k`` of a dynamic run from ``state`` (None: the first frame, the quasistatic
     equilibrium at rest): ``substeps`` time steps per frame interval of ``1 / fps`` s. A step that
     fails numerically restarts at rest from the frame's quasistatic equilibrium, flagged. Returns
@@ -595,7 +624,7 @@ def _dynamic_frame(dyn, state, a, jaw, k: int, options: SimulateOptions):
     from facesim.errors import SolverError
     from facesim.session import Frame
 
-    controls = Controls(a, jaw=jaw)
+    controls = Controls(a, jaw=jaw, head=head)
     steps, error = 0, ""
     if state is None:
         state, report, error = dyn.restart(controls, None, k)
