@@ -5,10 +5,13 @@ Two expressions (a smile and a frown with the jaw a little open) are blended in 
 physically attainable -- an interpolated expression sheet. Then the smile is exaggerated two ways,
 side by side as in the paper's Fig. 8: by scaling its activations (clamped to [0, 1], so the
 zygomaticus cannot go beyond 1) and by the force-length gain (``facesim.anim.gain``: 1, 2, 4 --
-beyond what activation 1 can do). Prints each frame's Newton iterations and its mouth-corner motion
-and writes ``blend.png`` and ``exaggeration.png``.
+beyond what activation 1 can do). Last, two performances are spliced (``facesim.anim.splice``): a
+smile that builds up, cut into a frown that opens the jaw, with a cross-fade at the join; each frame
+solved warm-started from the one before. Prints each frame's Newton iterations and its mouth-corner
+motion and writes ``blend.png``, ``exaggeration.png`` and ``splice.png`` (the controls and the
+corners' motion over the spliced frames, and a film strip of them).
 
-    python examples/04_editing.py --out editing/ [--model M.npz] [--size 320] [--steps 5]
+    python examples/04_editing.py --out editing/ [--model M.npz] [--size 320] [--steps 5] [--splice-frames 12]
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facesim.anim import ControlsSequence, blend, gain, scale
+from facesim.anim import ControlsSequence, blend, gain, keyframes, scale, splice
 from facesim.controls import Controls
 from facesim.fem.equilibrium import FaceSimulator
 from facesim.kinematics.condyle import SlidingCondyleJaw
@@ -54,6 +57,7 @@ def main(argv=None):
     ap.add_argument("--model", default=str(Path(__file__).resolve().parent.parent / "meshes" / "face_coarse.npz"))
     ap.add_argument("--size", type=int, default=320, help="picture size in pixels (square)")
     ap.add_argument("--steps", type=int, default=5, help="in-betweens of the blend, ends included")
+    ap.add_argument("--splice-frames", type=int, default=12, help="frames of each spliced performance (>= 6)")
     args = ap.parse_args(argv)
     from facesim.viz.render import render_image, save_png, tile_images
 
@@ -90,7 +94,60 @@ def main(argv=None):
         print(f"gain {factor:g}: mouth corners moved {corner_motion(model, eq.x):.2f} mm")
         sheet.append(picture(eq.x, f"gain x{factor:g}"))
     print(f"wrote {save_png(tile_images(sheet), out / 'exaggeration.png')}")
+    results["splice"], seq = spliced(model, sim, args.splice_frames, out, picture)
+    results["splice_sequence"] = seq
     return results
+
+
+def spliced(model, sim, n: int, out: Path, picture):
+    """Two keyframed performances of ``n`` frames spliced at frame ``n // 2`` with a cross-fade of
+    ``n // 4`` frames; every frame solved (warm start: the frame before); ``splice.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = max(int(n), 6)
+    rest = expression(model, {})
+    build_up = keyframes([rest, expression(model, SMILE), scale(expression(model, SMILE), 1.6)], [0, n // 2, n - 1],
+                         method="smoothstep")
+    opening = keyframes([expression(model, SMILE), expression(model, FROWN, opening=0.15), expression(model, FROWN)],
+                        [0, n // 2, n - 1], method="catmull-rom")
+    at, fade = n // 2, max(n // 4, 1)
+    seq = splice(build_up, opening, at=at, crossfade=fade)
+    eqs, x, strip = [], None, []
+    for k in range(seq.n_frames):
+        t0 = time.perf_counter()
+        eq = solve(sim, seq, k, x0=x)
+        x = eq.x if eq.converged else x
+        eqs.append(eq)
+        print(f"splice frame {seq.frames[k]}: converged {eq.converged}, {eq.report.iterations} Newton iterations, "
+              f"mouth corners moved {corner_motion(model, eq.x):.2f} mm, {time.perf_counter() - t0:.1f} s")
+    for k in np.unique(np.linspace(0, seq.n_frames - 1, 6).round().astype(int)):
+        strip.append(picture(eqs[k].x, f"frame {seq.frames[k]}"))
+    from facesim.viz.render import save_png, tile_images
+
+    save_png(tile_images(strip), out / "splice_strip.png")
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
+    f = seq.frames
+    for base, style in (("zygomaticus_major", "-"), ("depressor_anguli_oris", "--"), ("mentalis", ":")):
+        i = [j for j, name in enumerate(model.muscles.names) if name.rsplit("_", 1)[0] == base][0]
+        top.plot(f, seq.A[:, i], style, label=base.replace("_", " "))
+    top.plot(f, seq.jaw[:, 0] / 0.15, "k-.", label="jaw opening / 0.15 rad")
+    for ax in (top, bottom):
+        ax.axvspan(at - 0.5, at + fade - 0.5, color="0.9", zorder=0)
+        ax.axvline(at - 0.5, color="0.5", lw=0.8)
+    top.set_ylabel("activation")
+    top.set_title("spliced: smile building up | frown opening the jaw (grey: cross-fade)")
+    top.legend(fontsize=8, loc="upper left")
+    bottom.plot(f, [corner_motion(model, eq.x) for eq in eqs], "o-", ms=3)
+    bottom.set_ylabel("mouth corners moved, mm")
+    bottom.set_xlabel("frame")
+    fig.tight_layout()
+    fig.savefig(out / "splice.png", dpi=110)
+    plt.close(fig)
+    print(f"wrote {out / 'splice.png'} and {out / 'splice_strip.png'}")
+    return eqs, seq
 
 
 if __name__ == "__main__":

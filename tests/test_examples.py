@@ -55,8 +55,11 @@ def test_02_jaw_and_contact(tmp_path):
 
 def test_04_editing(tmp_path):
     ex = _load("04_editing")
-    results = ex.main(["--out", str(tmp_path), "--size", "96", "--steps", "3"])
+    results = ex.main(["--out", str(tmp_path), "--size", "96", "--steps", "3", "--splice-frames", "8"])
+    seq = results.pop("splice_sequence")
     assert all(eq.converged for group in results.values() for eq in group)
+    assert seq.n_frames == 4 + 8 and list(seq.frames) == list(range(12))   # a's frames 0-3, then b's 8
+    assert np.abs(np.diff(seq.A, axis=0)).max() < 0.35                      # the cross-fade: no jump at the join
     model = ex.load_model(ex.Path(ex.__file__).resolve().parent.parent / "meshes" / "face_coarse.npz")
     scaled = [ex.corner_motion(model, eq.x) for eq in results["scale"]]
     gained = [ex.corner_motion(model, eq.x) for eq in results["gain"]]
@@ -64,6 +67,7 @@ def test_04_editing(tmp_path):
     assert gained[0] < gained[1] < gained[2]                  # the gain goes on
     assert gained[2] > scaled[2] + 1.0                        # beyond what activation 1 can do (mm)
     assert (tmp_path / "blend.png").is_file() and (tmp_path / "exaggeration.png").is_file()
+    assert (tmp_path / "splice.png").is_file() and (tmp_path / "splice_strip.png").is_file()
 
 
 def test_06_dynamics(tmp_path):
