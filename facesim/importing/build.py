@@ -247,6 +247,22 @@ def import_model(*, skin=None, flesh=None, cranium=(), mandible=None, teeth_uppe
                       meta={"builder": "import", "units": "mm", "quality": report["quality"], "import": report,
                             "input_frame": {"T_facesim_from_input_mm": fit.meta()["T_facesim_from_input_mm"],
                                             "scale_to_mm": scale, "units": unit_name}})
+    # ---- head markers where the jaw does not move the skin (facesim.importing.head_markers)
+    t = time.perf_counter()
+    import dataclasses
+
+    from facesim.importing.head_markers import choose_head_markers
+
+    head, heads = choose_head_markers(model)
+    model = model.with_(markers=dataclasses.replace(model.markers, head=head))
+    report["head_markers"] = heads
+    moved = "; ".join(f"{n} dropped (the jaw moves it {v['jaw_mm']:.2f} mm)" for n, v in heads["dropped"].items())
+    added = ", ".join(f"{n} ({v['jaw_mm']:.2f} mm under the jaw, {v['muscles_mm']:.2f} under a muscle)"
+                      for n, v in heads["added"].items())
+    _say(progress, f"head markers: {', '.join(np.asarray(model.markers.names)[head])}"
+                   + (f"; {moved}" if moved else "") + (f"; added {added}" if added else ""))
+    timings["head_markers"] = time.perf_counter() - t
+    report["timings"] = {k: round(v, 2) for k, v in timings.items()}
     report["timings"]["total"] = round(time.perf_counter() - t0, 2)
     return model, report
 
