@@ -23,6 +23,13 @@ the ones asked for from a folder.
 * :func:`write_markers_c3d` -- a C3D of marker trajectories; frame numbers missing from the
   sequence are written as frames of missing markers (C3D is uniformly sampled).
 
+Positions are those of facesim's frame (mm, y up), or, with an
+:class:`~facesim.output_frame.OutputFrame` ``frame`` (``export-cache --output-frame input``), of
+the user's input frame and units of an imported model: USD then declares that unit
+(``metersPerUnit``) and the input axis nearest to up (``upAxis``), and the bone transforms are the
+same motions in that frame; the ``.pvd`` displacements are in that frame too; the C3D declares
+the unit.
+
 A frame that did not converge (``converged`` false in its state, or non-finite positions) is
 not shown: USD gets the last converged frame's values again at its time code (USD interpolates
 linearly between samples, so leaving the sample out would show a blend, not a hold), the ``.pvd``
@@ -48,6 +55,7 @@ import facesim
 from facesim._files import atomic_write, open_npz, require_suffix
 from facesim.errors import FacesimError
 from facesim.model import FaceModel
+from facesim.output_frame import FACESIM, output_frame as output_frame_of, run_output_frame
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc")
 #: Frame rate when neither the caller nor the run's report.json gives one (Hz).
@@ -111,12 +119,18 @@ def _listed_frames(path: Path) -> np.ndarray:
         raise FacesimError(f"{path}: a row without an integer frame number") from None
 
 
-def _run_fps(folder: Path) -> float | None:
-    """The frame rate the run recorded in ``report.json`` (``options.fps``, else ``fps``), if any."""
+def _report(folder: Path) -> dict | None:
+    """The run's ``report.json``, None when it has none or it is unreadable."""
     try:
         report = json.loads((folder / "report.json").read_text())
     except (OSError, ValueError):
         return None
+    return report if isinstance(report, dict) else None
+
+
+def _run_fps(folder: Path) -> float | None:
+    """The frame rate the run recorded in ``report.json`` (``options.fps``, else ``fps``), if any."""
+    report = _report(folder)
     fps = (report.get("options") or {}).get("fps", report.get("fps")) if isinstance(report, dict) else None
     return float(fps) if isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0 else None
 
@@ -229,9 +243,10 @@ def _prim_name(name: str, taken: set[str]) -> str:
     return out
 
 
-def write_usd(model: FaceModel, run: Run, path, fps: float | None = None) -> Path:
+def write_usd(model: FaceModel, run: Run, path, fps: float | None = None, frame=None) -> Path:
     """Write ``run`` as a USD stage at ``path`` (``.usd`` / ``.usdc`` binary, ``.usda`` text) and
-    return the path. See the module doc for the prims; ``fps`` (Hz) defaults to the run's.
+    return the path. See the module doc for the prims; ``fps`` (Hz) defaults to the run's;
+    ``frame``: the :class:`~facesim.output_frame.OutputFrame` of the stage (None: facesim's, mm, y up).
 
     Prims: ``/Face`` (default prim) with ``skin`` (Mesh; ``facesim:node`` int[] the model node of
     each point), ``cranium`` and ``jaw`` (Xforms holding the model's bone and collider surfaces of
@@ -241,6 +256,8 @@ def write_usd(model: FaceModel, run: Run, path, fps: float | None = None) -> Pat
     Gf, Sdf, Usd, UsdGeom, Vt = _pxr()
     path = require_suffix(path, USD_SUFFIXES, "a USD file name")
     fps = _fps(run, fps)
+    frame = frame or FACESIM
+    out = frame.points
 
     def vec3f(p):
         return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(p, dtype=np.float32))
@@ -258,8 +275,8 @@ def write_usd(model: FaceModel, run: Run, path, fps: float | None = None) -> Pat
         return m
 
     stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-    UsdGeom.SetStageMetersPerUnit(stage, 0.001)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if frame.up_axis() == "Z" else UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, frame.meters_per_unit)
     stage.SetTimeCodesPerSecond(fps)
     stage.SetFramesPerSecond(fps)
     stage.SetStartTimeCode(float(run.frames[0]))
@@ -268,7 +285,7 @@ def write_usd(model: FaceModel, run: Run, path, fps: float | None = None) -> Pat
     stage.SetDefaultPrim(face.GetPrim())
 
     nodes, inverse = np.unique(model.skin, return_inverse=True)
-    skin = mesh("/Face/skin", model.X[nodes], inverse.reshape(-1, 3))
+    skin = mesh("/Face/skin", out(model.X[nodes]), inverse.reshape(-1, 3))
     skin.GetPrim().CreateAttribute("facesim:node", Sdf.ValueTypeNames.IntArray).Set(
         Vt.IntArray.FromNumpy(nodes.astype(np.int32)))
     points, skin_extent = skin.GetPointsAttr(), skin.GetExtentAttr()
@@ -278,9 +295,10 @@ def write_usd(model: FaceModel, run: Run, path, fps: float | None = None) -> Pat
         ops[bone] = group.AddTransformOp()
         for s in model.bones + model.colliders:
             if s.bone == bone:
-                mesh(f"/Face/{bone}/{_prim_name(s.name, taken)}", s.vertices, s.faces)
+                mesh(f"/Face/{bone}/{_prim_name(s.name, taken)}", out(s.vertices), s.faces)
     markers = UsdGeom.Points.Define(stage, "/Face/markers")
-    markers.CreateWidthsAttr(Vt.FloatArray.FromNumpy(np.full(model.n_markers, 2.0, dtype=np.float32)))
+    markers.CreateWidthsAttr(Vt.FloatArray.FromNumpy(np.full(model.n_markers, 2.0 / frame.mm_per_unit,
+                                                             dtype=np.float32)))   # 2 mm
     markers.GetPrim().CreateAttribute("facesim:names", Sdf.ValueTypeNames.StringArray).Set(list(model.markers.names))
     marker_points = markers.CreatePointsAttr()
     face.GetPrim().CreateAttribute("facesim:muscles", Sdf.ValueTypeNames.StringArray).Set(list(model.muscles.names))
@@ -291,17 +309,19 @@ def write_usd(model: FaceModel, run: Run, path, fps: float | None = None) -> Pat
         if not ok:
             unconverged.append(k)
         t = Usd.TimeCode(float(k))
-        points.Set(vec3f(x[nodes]), t)
-        skin_extent.Set(extent(x[nodes]), t)
+        skin_x = out(x[nodes])
+        points.Set(vec3f(skin_x), t)
+        skin_extent.Set(extent(skin_x), t)
         for bone, T in bone_transforms(model, x).items():
+            T = frame.transform(T)
             ops[bone].Set(Gf.Matrix4d(T.T.tolist()), t)   # USD transforms row vectors: p' = p M
-        marker_points.Set(vec3f(model.marker_positions(x)), t)
+        marker_points.Set(vec3f(out(model.marker_positions(x))), t)
         activations.Set(Vt.FloatArray.FromNumpy(a.astype(np.float32)), t)
 
     layer = stage.GetRootLayer()
     layer.customLayerData = {"facesim": {
         "version": facesim.__version__, "source": run.source, "fps": fps, "frames": len(run),
-        "units": "mm", "unconverged_frames": Vt.IntArray(unconverged)}}
+        "units": frame.units, "output_frame": frame.name, "unconverged_frames": Vt.IntArray(unconverged)}}
 
     def export(tmp: Path):
         try:
@@ -325,15 +345,18 @@ def tet_activation(model: FaceModel, a) -> tuple[np.ndarray, np.ndarray]:
             np.bincount(ms.tet, weights=w * ms.sigma_max[ms.muscle], minlength=model.n_tets))
 
 
-def write_pvd(model: FaceModel, run: Run, path, fps: float | None = None) -> Path:
+def write_pvd(model: FaceModel, run: Run, path, fps: float | None = None, frame=None) -> Path:
     """Write ``run`` as the ParaView collection ``path`` (``.pvd``) of per-frame volumes
     ``<path without .pvd>/frame_KKKKK.vtu`` (and ``rest.vtu`` if the first frames did not
     converge); return the ``.pvd`` path. Arrays: see the module doc; field data ``frame``,
-    ``converged`` and ``time`` (s). ``fps`` (Hz) defaults to the run's."""
+    ``converged`` and ``time`` (s). ``fps`` (Hz) defaults to the run's; ``frame``: the
+    :class:`~facesim.output_frame.OutputFrame` of the points and displacements (None: facesim's, mm)."""
     import meshio
 
     path = require_suffix(path, (".pvd",), "a ParaView collection file name")
     fps = _fps(run, fps)
+    frame = frame or FACESIM
+    rest = frame.points(model.X)
     folder = path.with_suffix("")
     if folder.exists() and not folder.is_dir():
         raise FacesimError(f"{folder}: expected a folder for the .vtu files of {path.name}, found a file")
@@ -347,7 +370,9 @@ def write_pvd(model: FaceModel, run: Run, path, fps: float | None = None) -> Pat
                  "muscle": [dominant.astype(np.int32)]}
         field = {**names, "frame": np.array([k], dtype=np.int64), "converged": np.array([int(ok)], dtype=np.int32),
                  "time": np.array([k / fps])}
-        grid = meshio.Mesh(x, [("tetra", model.tets)], point_data={"displacement": x - model.X}, cell_data=cells)
+        points = frame.points(x)
+        grid = meshio.Mesh(points, [("tetra", model.tets)], point_data={"displacement": points - rest},
+                           cell_data=cells)
 
         def write(tmp: Path):
             meshio.write(tmp, grid, file_format="vtu")
@@ -406,10 +431,11 @@ def read_pvd(path) -> list[tuple[float, Path]]:
 
 
 # ------------------------------------------------------------------ C3D
-def write_markers_c3d(path, frames, names, P, fps: float) -> Path:
+def write_markers_c3d(path, frames, names, P, fps: float, units: str = "mm") -> Path:
     """Write marker trajectories ``P (F, N, 3)`` mm of the increasing ``frames (F,)`` to a C3D file
-    at ``fps`` (:func:`facesim.mocap.io.write_c3d`; NaN = missing, residual -1). Frame numbers the
-    sequence skips are written as frames whose markers are all missing."""
+    at ``fps``, its numbers in ``units`` (:func:`facesim.mocap.io.write_c3d`; NaN = missing,
+    residual -1). Frame numbers the sequence skips are written as frames whose markers are all
+    missing."""
     from facesim.mocap.io import write_c3d
 
     frames = np.asarray(frames, dtype=np.int64)
@@ -417,15 +443,19 @@ def write_markers_c3d(path, frames, names, P, fps: float) -> Path:
     _check_frames(frames, "markers")
     full = np.full((int(frames[-1] - frames[0]) + 1, *P.shape[1:]), np.nan)
     full[frames - frames[0]] = P
-    return write_c3d(path, np.arange(frames[0], frames[-1] + 1), names, full, fps)
+    return write_c3d(path, np.arange(frames[0], frames[-1] + 1), names, full, fps, units)
 
 
 # ------------------------------------------------------------------ a run folder
-def export_cache(folder, model: FaceModel, *, usd=None, pvd=None, c3d=None, fps: float | None = None) -> dict:
+def export_cache(folder, model: FaceModel, *, usd=None, pvd=None, c3d=None, fps: float | None = None,
+                 output_frame="facesim") -> dict:
     """Write the caches asked for of the run in ``folder``: ``usd`` (path), ``pvd`` (path),
-    ``c3d`` (path; from the run's ``markers.csv`` when it has one, else the model's markers on
-    the states). ``fps`` defaults to the run's (``report.json``), else 30 Hz. Returns
-    ``{"frames", "unconverged_frames", "fps", "usd", "pvd", "c3d"}`` (paths as str or None)."""
+    ``c3d`` (path; from the run's ``markers.csv`` when it has one -- taken from the output frame
+    the run recorded in ``report.json`` -- else the model's markers on the states). ``fps``
+    defaults to the run's (``report.json``), else 30 Hz. ``output_frame``: ``"facesim"``,
+    ``"input"`` (an imported model's input frame and units) or an
+    :class:`~facesim.output_frame.OutputFrame`: the frame of all three. Returns ``{"frames",
+    "unconverged_frames", "fps", "usd", "pvd", "c3d", "output_frame"}`` (paths as str or None)."""
     if usd is None and pvd is None and c3d is None:
         raise FacesimError("export-cache: nothing to do; give --usd OUT.usd, --pvd OUT.pvd and/or --c3d OUT.c3d")
     if usd is not None:
@@ -435,23 +465,28 @@ def export_cache(folder, model: FaceModel, *, usd=None, pvd=None, c3d=None, fps:
         require_suffix(pvd, (".pvd",), "a ParaView collection file name")
     if c3d is not None:
         require_suffix(c3d, (".c3d",), "a C3D file name")
+    frame = output_frame_of(model, output_frame)
     run = read_run(folder, model)
     fps = _fps(run, fps)
-    done = {"frames": len(run), "fps": fps, "usd": None, "pvd": None, "c3d": None}
+    done = {"frames": len(run), "fps": fps, "usd": None, "pvd": None, "c3d": None, "output_frame": frame.describe()}
     if usd is not None:
-        done["usd"] = str(write_usd(model, run, usd, fps))
+        done["usd"] = str(write_usd(model, run, usd, fps, frame))
     if pvd is not None:
-        done["pvd"] = str(write_pvd(model, run, pvd, fps))
+        done["pvd"] = str(write_pvd(model, run, pvd, fps, frame))
     unconverged = [int(k) for i, k in enumerate(run.frames) if not run.load(i)[2]]
     if c3d is not None:
         csv_path = Path(folder) / "markers.csv"
         if csv_path.is_file():
             from facesim.mocap.io import read_markers_csv
 
-            data = read_markers_csv(csv_path)
-            done["c3d"] = str(write_markers_c3d(c3d, data.frames, data.names, data.P, fps))
+            written = run_output_frame(model, _report(Path(folder)))   # the frame markers.csv is in
+            data = read_markers_csv(csv_path, written.units)
+            P = data.P if written.name == frame.name else \
+                frame.points_mm(written.to_facesim(data.P / written.mm_per_unit))
+            done["c3d"] = str(write_markers_c3d(c3d, data.frames, data.names, P, fps, frame.units))
         else:
-            done["c3d"] = str(write_markers_c3d(c3d, run.frames, model.markers.names, markers_of(model, run), fps))
+            P = frame.points_mm(markers_of(model, run))
+            done["c3d"] = str(write_markers_c3d(c3d, run.frames, model.markers.names, P, fps, frame.units))
     done["unconverged_frames"] = unconverged
     return done
 

@@ -289,16 +289,18 @@ def cmd_model_export(args) -> int:
     if args.output is not None:
         out = require_suffix(args.output, (".vtu", ".ply", ".obj"), "an export file name")
     model = _load(args.model)
+    frame = _output_frame(args, model)
+    where = "" if frame.is_identity else f" in {frame.said()}"
     if out is not None:
         if out.suffix.lower() == ".vtu":
-            export_volume(model, out)
-            print(f"wrote volume mesh ({model.n_tets:,} tets) -> {out}")
+            export_volume(model, out, frame=frame)
+            print(f"wrote volume mesh ({model.n_tets:,} tets){where} -> {out}")
         else:
-            export_skin(model, out)
-            print(f"wrote skin ({len(model.skin):,} triangles) -> {out}")
+            export_skin(model, out, frame=frame)
+            print(f"wrote skin ({len(model.skin):,} triangles){where} -> {out}")
     if args.surfaces is not None:
-        paths = export_surfaces(model, args.surfaces)
-        print(f"wrote {len(paths)} rigid surfaces -> {args.surfaces}")
+        paths = export_surfaces(model, args.surfaces, frame=frame)
+        print(f"wrote {len(paths)} rigid surfaces{where} -> {args.surfaces}")
         for p in paths:
             print(f"  {p}")
     return 0
@@ -349,8 +351,9 @@ def cmd_simulate(args) -> int:
                          *((name, not args.dynamic, "without --dynamic")
                            for name in ("substeps", "soften", "density", "damping", "integrator"))])
     model = _load(args.model)
+    frame = _output_frame(args, model)
     if args.controls_from is not None:
-        return _simulate_solved(args, model)
+        return _simulate_solved(args, model, frame)
     if args.activations is None:
         raise FacesimError("simulate: give the controls: --activations A.csv (and --jaw J.csv), or --controls-from "
                            "OUT_DIR of a solve-mocap run")
@@ -370,7 +373,15 @@ def cmd_simulate(args) -> int:
     info = {"model": str(args.model), "activations": str(args.activations),
             "jaw": str(args.jaw) if args.jaw else None, "collider_specs": list(args.collider),
             "head": None if head is None else str(args.head)}
-    return _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, head=head)
+    return _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, head=head, frame=frame)
+
+
+def _output_frame(args, model):
+    """The :class:`~facesim.output_frame.OutputFrame` of ``--output-frame`` for ``model`` (the file
+    ``args.model``): a model that was not imported has no input frame (one line)."""
+    from facesim.output_frame import output_frame
+
+    return output_frame(model, args.output_frame, args.model)
 
 
 def _head_motion(args, frames, reference, default=None):
@@ -399,7 +410,7 @@ def _simulate_options(args, model, teeth: bool = False, lips: bool = False, stif
                            soften=tuple(args.soften), density=tuple(args.density), integrator=args.integrator)
 
 
-def _simulate_solved(args, model) -> int:
+def _simulate_solved(args, model, frame) -> int:
     """simulate --controls-from OUT_DIR: the frames a solve-mocap run solved, with its jaw model and
     contact set-up, in the model frame (the solve stabilised the head)."""
     from facesim.controls_io import read_replay
@@ -427,18 +438,20 @@ def _simulate_solved(args, model) -> int:
                         solved if solved.is_file() else None)
     info["head"] = None if head is None else str(args.head)
     return _run_simulate(args, model, r.A, r.frames, r.jaw, r.jaw_model, colliders, options, info, gain=r.gain,
-                         head=head)
+                         head=head, frame=frame)
 
 
-def _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, gain=None, head=None) -> int:
+def _run_simulate(args, model, A, frames, T, jaw_model, colliders, options, info, gain=None, head=None,
+                  frame=None) -> int:
     from facesim.simulate import simulate
 
     s = simulate(model, A, args.output, frames=frames, jaw=T, jaw_model=jaw_model, colliders=colliders,
                  options=options, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, info=info,
-                 gain=gain, head=head)
+                 gain=gain, head=head, output_frame=frame or "facesim")
     reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
+    where = "" if frame is None or frame.is_identity else f"; skin and markers in {frame.said()}"
     print(f"simulated {s['frames']} frames ({s['converged']} of {s['finished_frames']} converged{reused}) in "
-          f"{s['wall_seconds']:.1f} s -> {args.output}")
+          f"{s['wall_seconds']:.1f} s -> {args.output}{where}")
     if s.get("video_note"):
         print(f"video: {s['video_note']}")
     elif "video" in s["outputs"]:
@@ -451,10 +464,12 @@ def cmd_export_cache(args) -> int:
     from facesim.caches import export_cache
 
     model = _load(args.model)
-    s = export_cache(args.run, model, usd=args.usd, pvd=args.pvd, c3d=args.c3d, fps=args.fps)
+    frame = _output_frame(args, model)
+    s = export_cache(args.run, model, usd=args.usd, pvd=args.pvd, c3d=args.c3d, fps=args.fps, output_frame=frame)
     skipped = f"; {len(s['unconverged_frames'])} did not converge and show the last converged frame" \
         if s["unconverged_frames"] else ""
-    print(f"cached {s['frames']} frames of {args.run} at {s['fps']:g} fps{skipped}")
+    where = "" if frame.is_identity else f" in {frame.said()}"
+    print(f"cached {s['frames']} frames of {args.run} at {s['fps']:g} fps{where}{skipped}")
     for kind in ("usd", "pvd", "c3d"):
         if s[kind]:
             print(f"  {kind}: {s[kind]}")
@@ -479,9 +494,11 @@ def cmd_solve_mocap(args) -> int:
     _warn_ignored(args, [("loss_scale", args.loss == "l2", "with --loss l2"),
                          ("head_smoothing", args.head != "procrustes", f"with --head {args.head}"),
                          ("color_by", not args.render, "without --render"),
+                         ("output_frame", not args.write_meshes, "without --write-meshes"),
                          ("contact_stiffness", args.no_contact and not args.collider,
                           "with --no-contact and no --collider")])
     model = _load(args.model)
+    frame = _output_frame(args, model) if args.write_meshes else None
     data = read_markers(args.markers, units=args.units)
     index, extra, missing = match_markers(model.markers.names, data.names)
     layout = None
@@ -529,7 +546,7 @@ def cmd_solve_mocap(args) -> int:
                   progress=not args.quiet, client=client, neutral=neutral,
                   info={"model": str(args.model), "markers": str(args.markers), "jaw_model": args.jaw_model,
                         "frames": args.frames, "bind_frames": args.bind_frames, "units": args.units},
-                  fps=data.rate or 30.0)
+                  fps=data.rate or 30.0, output_frame=frame or "facesim")
     plot_track(args.output)
     if layout is not None:
         _write_placement(args.output, solver.model, layout)
@@ -643,6 +660,16 @@ def _mocap_contact(args, model, base: Path) -> dict:
     print(f"contact: {state}" + (f", {len(colliders)} collider(s)" if colliders else ""))
     return {"lip_contact": lips, "teeth_contact": teeth, "colliders": tuple(colliders),
             "contact_stiffness": args.contact_stiffness}
+
+
+def _add_output_frame_option(parser, files: str, note: str = "") -> None:
+    """``--output-frame`` (one meaning in simulate, model export, export-cache and solve-mocap)."""
+    parser.add_argument("--output-frame", choices=("facesim", "input"), default="facesim",
+                        help=f"the frame of {files}: facesim (mm; x left, y up, z forward; origin between the "
+                             "condyles), or input: the frame and units of the meshes an imported model was made from "
+                             "('facesim model import' stores the transform in the model; this is its exact inverse; "
+                             "TRC/C3D declare the unit). A model built by 'facesim model build' has no input frame"
+                             f"{'. ' + note if note else ''} (default: %(default)s)")
 
 
 def _add_color_by_option(parser, where: str) -> None:
@@ -826,13 +853,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     export = sub.add_parser(
         "export", help="write a model as VTU (volume) or PLY/OBJ (skin) and its rigid surfaces as PLY",
-        description="Export a model for other tools, positions in mm. OUT.vtu: the flesh tets with cell data "
-                    "tissue, simulated, muscle (dominant muscle index, -1 none), muscle_fraction, "
-                    "muscle_total_fraction, fibre, and point data attachment (0 free, 1 cranium, 2 jaw). "
+        description="Export a model for other tools, positions in mm in facesim's frame (with --output-frame "
+                    "input: in the frame and units of the meshes an imported model was made from). OUT.vtu: the "
+                    "flesh tets with cell data tissue, simulated, muscle (dominant muscle index, -1 none), "
+                    "muscle_fraction, muscle_total_fraction, fibre, and point data attachment (0 free, 1 cranium, "
+                    "2 jaw). "
                     "OUT.ply / OUT.obj: the skin surface. --surfaces DIR: every bone and collider as DIR/NAME.ply.")
     export.add_argument("model", metavar="M.npz", help="model file")
     export.add_argument("-o", "--output", metavar="OUT", help="output file: .vtu (volume), .ply or .obj (skin)")
     export.add_argument("--surfaces", metavar="DIR", help="folder for the bone and collider surfaces (.ply)")
+    _add_output_frame_option(export, "the positions (and OUT.vtu's fibre directions)")
     export.set_defaults(func=cmd_model_export)
 
     from facesim.viz.render import LAYERS, VIEWS  # cheap: pyvista itself is imported on first render
@@ -869,8 +899,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "frame by frame into OUT/: skin/frame_KKKKK.ply (deformed skin, mm), state/frame_KKKKK.npz "
                     "(node positions x, mm), markers.csv (frame,<name>_x,<name>_y,<name>_z, mm) and markers.trc, "
                     "frames.csv (per frame: converged, Newton iterations, relative residual, seconds, linear "
-                    "iterations) and report.json. A frame that does not converge is flagged in frames.csv and "
-                    "report.json and its markers are written as NaN. An interrupted run loses no finished frame: "
+                    "iterations) and report.json. With --output-frame input the skin and marker files are in the "
+                    "frame and units of the meshes an imported model was made from. A frame that does not converge "
+                    "is flagged in frames.csv and report.json and its markers are written as NaN. An interrupted "
+                    "run loses no finished frame: "
                     "run again with --resume to continue.",
         epilog="Activations CSV: header 'frame,<muscle>,...' with muscle names of the model ('facesim model info' "
                "lists them; muscles without a column stay 0), values in [0, 1], one row per frame in increasing "
@@ -945,6 +977,9 @@ def build_parser() -> argparse.ArgumentParser:
                           help="linear solver of the Newton steps: algebraic multigrid + CG, sparse LU (SuperLU), "
                                "or MKL PARDISO (pip install 'facesim[pardiso]') (default: %(default)s)")
     _add_budget_option(simulate)
+    _add_output_frame_option(simulate, "OUT/skin/*.ply, markers.csv, markers.trc and markers.c3d",
+                             "OUT/state/*.npz, the solver's resume state, stay in facesim's frame; report.json's "
+                             "output_frame says which frame the files are in; --resume must give the run's")
     simulate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     simulate.set_defaults(func=cmd_simulate, command_parser=simulate)
 
@@ -952,7 +987,8 @@ def build_parser() -> argparse.ArgumentParser:
         "export-cache", help="animation caches of a finished run: USD, ParaView .pvd series, C3D of the markers",
         description="Write caches of the run in OUT_DIR (a folder written by simulate, or solve-mocap --write-meshes: "
                     "state/frame_KKKKK.npz) for other tools: --usd a USD stage (skin as a time-sampled mesh, cranium "
-                    "and jaw surfaces with time-sampled transforms, markers; mm, y up; pip install usd-core), --pvd "
+                    "and jaw surfaces with time-sampled transforms, markers; mm, y up, or with --output-frame input "
+                    "the imported model's input frame and units; pip install usd-core), --pvd "
                     "a ParaView collection of per-frame .vtu volumes (point data displacement, cell data activation, "
                     "active_stress, tissue, muscle), --c3d the simulated markers. Frames that did not converge show "
                     "the last converged frame and are listed in the caches.")
@@ -962,6 +998,8 @@ def build_parser() -> argparse.ArgumentParser:
     cache.add_argument("--pvd", metavar="OUT.pvd", help="ParaView collection to write; the .vtu files go in OUT/ beside it")
     cache.add_argument("--c3d", metavar="OUT.c3d", help="C3D of the simulated markers (from OUT_DIR/markers.csv)")
     cache.add_argument("--fps", type=_fps, help="frame rate in Hz (default: the run's, from report.json, else 30)")
+    _add_output_frame_option(cache, "the caches", "USD's metersPerUnit and upAxis follow it; from any run, whatever "
+                                                  "frame the run wrote its own files in")
     cache.set_defaults(func=cmd_export_cache)
 
     solve = commands.add_parser(
@@ -1061,11 +1099,14 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--write-meshes", action="store_true",
                        help="also write per frame what simulate writes: OUT/skin/frame_KKKKK.ply (the solved skin, mm) "
                             "and OUT/state/frame_KKKKK.npz (x, a, jaw, converged, error), from the solve's own "
-                            "equilibria (no re-solve), and at the end OUT/markers.csv and markers.trc of the solved "
-                            "markers (model frame)")
+                            "equilibria (no re-solve), and at the end OUT/markers.csv, markers.trc and markers.c3d of "
+                            "the solved markers (model frame; see --output-frame)")
     _add_color_by_option(solve, "in the simulated panel of the --render pictures")
     _add_contact_options(solve, "F", default_on=True)
     _add_budget_option(solve)
+    _add_output_frame_option(solve, "the --write-meshes files OUT/skin/*.ply, markers.csv, markers.trc and "
+                                    "markers.c3d", "OUT/state/*.npz stay in facesim's frame; --resume must give "
+                                                   "the run's")
     solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     solve.set_defaults(func=cmd_solve_mocap, command_parser=solve)
     add_edit_commands(commands)

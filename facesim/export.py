@@ -5,9 +5,13 @@
 * :func:`export_skin` -- the skin surface as PLY or OBJ;
 * :func:`export_surfaces` -- every bone and collider surface as PLY.
 
-Positions are written in mm. Every writer accepts deformed node positions ``x (n, 3)`` in
-place of the rest positions, and writes through a temporary file renamed into place, so a
-failed export never leaves a truncated file behind.
+Positions are written in mm in facesim's frame, or, given an
+:class:`~facesim.output_frame.OutputFrame` ``frame`` (``--output-frame input``), in the user's
+input frame and units of an imported model (directions such as fibres rotated with it; the
+winding, and so the outward normals, kept: the map is a rotation, a translation and a positive
+scale). Every writer accepts deformed node positions ``x (n, 3)`` (mm, facesim's frame) in place
+of the rest positions, and writes through a temporary file renamed into place, so a failed
+export never leaves a truncated file behind.
 """
 
 from __future__ import annotations
@@ -39,6 +43,11 @@ def _positions(model: FaceModel, x) -> np.ndarray:
     return x
 
 
+def _out(frame, P) -> np.ndarray:
+    """``P (k, 3)`` mm in facesim's frame in the output ``frame`` (None: facesim's)."""
+    return P if frame is None else frame.points(P)
+
+
 def _write(path: Path, mesh: meshio.Mesh) -> Path:
     return atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format=_FORMATS[path.suffix.lower()]))
 
@@ -51,7 +60,7 @@ def attachment_labels(model: FaceModel) -> np.ndarray:
     return label
 
 
-def export_volume(model: FaceModel, path, x=None) -> Path:
+def export_volume(model: FaceModel, path, x=None, frame=None) -> Path:
     """Write the flesh mesh to a ``.vtu`` file and return its path.
 
     Cell data (one value per tet): ``tissue`` (int32 label into ``model.tissues``),
@@ -59,7 +68,8 @@ def export_volume(model: FaceModel, path, x=None) -> Path:
     ``model.muscles.names``, -1 for none), ``muscle_fraction`` (its volume fraction),
     ``muscle_total_fraction`` (sum over all muscles), ``fibre`` (3 comps, unit rest fibre
     direction of the dominant muscle, zero where there is none). Point data: ``attachment``
-    (int8: 0 free, 1 cranium, 2 jaw). ``x (n, 3)`` mm replaces the rest positions if given.
+    (int8: 0 free, 1 cranium, 2 jaw). ``x (n, 3)`` mm replaces the rest positions if given;
+    ``frame``: the :class:`~facesim.output_frame.OutputFrame` of the points and fibres (None: facesim's).
 
     ``muscle_total_fraction`` is not a volume fraction and may exceed 1: each muscle's fraction
     is the share of the tet inside that muscle's own ribbon (11 sample points,
@@ -72,8 +82,10 @@ def export_volume(model: FaceModel, path, x=None) -> Path:
     muscle tets sum above 1 (at most 2.91, three muscles).
     """
     path = require_suffix(path, VOLUME_SUFFIXES, "a volume mesh file name")
-    points = _positions(model, x)
+    points = _out(frame, _positions(model, x))
     dominant, fraction, fibre = model.muscles.dominant(model.n_tets)
+    if frame is not None:
+        fibre = frame.directions(fibre)
     cell_data = {
         "tissue": [model.tissue.astype(np.int32)],
         "simulated": [model.simulated.astype(np.uint8)],
@@ -98,23 +110,25 @@ def _write_surface(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
     return _write(path, mesh)
 
 
-def export_skin(model: FaceModel, path, x=None) -> Path:
+def export_skin(model: FaceModel, path, x=None, frame=None) -> Path:
     """Write the skin triangles (outward oriented) to ``.ply`` or ``.obj``, by suffix.
 
     Only the nodes the skin uses are written, renumbered in increasing order of their model
-    node index. ``x (n, 3)`` mm replaces the rest positions if given. Returns the path.
+    node index. ``x (n, 3)`` mm replaces the rest positions if given; ``frame``: the
+    :class:`~facesim.output_frame.OutputFrame` of the vertices (None: facesim's). Returns the path.
     """
     path = require_suffix(path, SURFACE_SUFFIXES, "a surface file name")
     vertices, faces = _compact(_positions(model, x), model.skin)
-    return _write_surface(path, vertices, faces)
+    return _write_surface(path, _out(frame, vertices), faces)
 
 
 def _safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "surface"
 
 
-def export_surfaces(model: FaceModel, folder) -> list[Path]:
-    """Write every bone and collider surface to ``folder/<name>.ply`` (rest positions, mm).
+def export_surfaces(model: FaceModel, folder, frame=None) -> list[Path]:
+    """Write every bone and collider surface to ``folder/<name>.ply`` (rest positions, mm; in the
+    :class:`~facesim.output_frame.OutputFrame` ``frame`` if given).
 
     Returns the written paths, bones first, in model order.
     """
@@ -124,5 +138,5 @@ def export_surfaces(model: FaceModel, folder) -> list[Path]:
     paths = []
     for surface in model.bones + model.colliders:
         vertices, faces = _compact(surface.vertices, surface.faces)
-        paths.append(_write_surface(folder / f"{_safe_name(surface.name)}.ply", vertices, faces))
+        paths.append(_write_surface(folder / f"{_safe_name(surface.name)}.ply", _out(frame, vertices), faces))
     return paths

@@ -9,8 +9,13 @@ are written frame by frame into ``OUT/``:
   (opening, right slide, left slide) for the sliding-condyle jaw), ``converged`` and ``error``
   (the resume warm start);
 * ``png/frame_KKKKK.png`` with ``render`` (and ``video.mp4`` or ``video.gif`` with ``video``);
-* ``markers.csv`` (``frame,<name>_x,<name>_y,<name>_z``, mm) and ``markers.trc``;
+* ``markers.csv`` (``frame,<name>_x,<name>_y,<name>_z``, mm), ``markers.trc`` and ``markers.c3d``;
 * ``frames.csv`` the solver log, one row per frame; ``report.json`` the summary.
+
+Skin and markers are written in facesim's frame (mm), or with ``output_frame="input"`` in the
+user's input frame and units of an imported model (:mod:`facesim.output_frame`; ``report.json``'s
+``output_frame`` says which, the TRC and C3D declare the unit). The state files stay in facesim's
+frame: they are the solver's state.
 
 Crash safety: per-frame files are written to a temporary file and renamed; ``frames.csv`` and
 ``markers.csv`` are append-only logs (:mod:`facesim.framelog`), one complete line per write,
@@ -36,9 +41,9 @@ the frame's quasistatic equilibrium (the frame is flagged, its ``error`` says so
 
 The folder (:class:`facesim.runfolder.RunFolder`): one run at a time (``OUT/.lock``); a folder
 holding a run needs ``resume`` or ``overwrite``; ``OUT/run.json`` records the inputs (model,
-activations, jaw, frames, jaw model, solver and contact options), and a resume with other inputs
-is refused, naming them. Render options (``render``, ``video``, ``view``, ``size``, ``fps``) are
-not inputs: a resume may add pictures to a finished run.
+activations, jaw, frames, jaw model, solver and contact options, the output frame), and a resume
+with other inputs is refused, naming them. Render options (``render``, ``video``, ``view``,
+``size``, ``fps``) are not inputs: a resume may add pictures to a finished run.
 """
 
 from __future__ import annotations
@@ -60,6 +65,7 @@ from facesim.errors import FacesimError
 from facesim.fem.newton import NewtonOptions
 from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.model import FaceModel
+from facesim.output_frame import FACESIM, output_frame as resolve_output_frame
 from facesim.runfolder import RunFolder, describe, fingerprint, finish, parts
 
 FRAME_LOG_COLUMNS = ("frame", "converged", "stop_reason", "iterations", "relative_residual", "residual_N", "seconds",
@@ -158,16 +164,18 @@ def _save_state(path: Path, k: int, x, a, jaw, converged: bool, error: str, extr
                                             converged=converged, error=error, **(extra or {})))
 
 
-def write_frame(out_dir, model: FaceModel, k: int, x, a, jaw, converged: bool, error: str = "", extra=None) -> None:
+def write_frame(out_dir, model: FaceModel, k: int, x, a, jaw, converged: bool, error: str = "", extra=None,
+                frame=None) -> None:
     """The files of frame ``k`` as ``simulate`` writes them into ``out_dir`` (also ``solve-mocap
     --write-meshes``): ``state/frame_KKKKK.npz`` (``x (n, 3)`` mm at full precision, ``a
     (n_muscles,)``, ``jaw`` the jaw model's controls, ``frame``, ``converged``, ``error``), then
     ``skin/frame_KKKKK.ply`` (the skin at ``x``; rest positions where ``x`` is not finite, so a
     diverged frame still has its files); ``extra``: more arrays for the state file (a dynamic run's
-    velocities and history). Each file is written atomically."""
+    velocities and history); ``frame``: the :class:`~facesim.output_frame.OutputFrame` of the skin
+    (None: facesim's; the state is always in facesim's). Each file is written atomically."""
     out = _Out(out_dir)
     _save_state(out.state(k), k, x, a, jaw, converged, error, extra)
-    _draw(out, model, k, x, SimulateOptions(), png=False)
+    _draw(out, model, k, x, SimulateOptions(), png=False, frame=frame)
 
 
 def frame_state(out_dir, k: int, model: FaceModel) -> tuple[np.ndarray, bool] | None:
@@ -183,22 +191,25 @@ def frame_state(out_dir, k: int, model: FaceModel) -> tuple[np.ndarray, bool] | 
     return (x, converged) if x.shape == model.X.shape else None
 
 
-def redraw_skin(out_dir, model: FaceModel, k: int) -> bool:
-    """Write frame ``k``'s missing skin PLY from its state file; False when it has neither."""
+def redraw_skin(out_dir, model: FaceModel, k: int, frame=None) -> bool:
+    """Write frame ``k``'s missing skin PLY from its state file (in the output ``frame``, None:
+    facesim's); False when it has neither."""
     out = _Out(out_dir)
     if out.skin(k).is_file():
         return True
     state = frame_state(out_dir, k, model)
     if state is None:
         return False
-    _draw(out, model, k, state[0], SimulateOptions(), png=False)
+    _draw(out, model, k, state[0], SimulateOptions(), png=False, frame=frame)
     return True
 
 
-def write_marker_files(out_dir, model: FaceModel, frames, fps: float) -> int:
-    """``markers.csv`` and ``markers.trc`` (at ``fps`` Hz) of ``out_dir`` from the state files of
-    ``frames``: the model's markers at each frame's ``x`` (mm), NaN for a frame that did not
-    converge; frames without a state file are left out. Returns the number of frames written."""
+def write_marker_files(out_dir, model: FaceModel, frames, fps: float, frame=None) -> int:
+    """``markers.csv``, ``markers.trc`` (at ``fps`` Hz) and ``markers.c3d`` of ``out_dir`` from the
+    state files of ``frames``: the model's markers at each frame's ``x``, NaN for a frame that did
+    not converge; frames without a state file are left out. In the output ``frame`` (an
+    :class:`~facesim.output_frame.OutputFrame`; None: facesim's, mm), the TRC and C3D declaring its
+    unit. Returns the number of frames written."""
     from facesim.caches import write_markers_c3d
     from facesim.mocap.io import write_markers_csv, write_trc
 
@@ -212,9 +223,11 @@ def write_marker_files(out_dir, model: FaceModel, frames, fps: float) -> int:
         rows.append(k)
         P.append(model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan))
     if rows:
-        write_markers_csv(out.markers_csv, rows, model.markers.names, np.array(P))
-        write_trc(out.trc, rows, model.markers.names, np.array(P), fps)
-        write_markers_c3d(out.root / "markers.c3d", rows, model.markers.names, np.array(P), fps)
+        frame = frame or FACESIM
+        P, units = frame.points_mm(np.array(P)), frame.units
+        write_markers_csv(out.markers_csv, rows, model.markers.names, P, units)
+        write_trc(out.trc, rows, model.markers.names, P, fps, units)
+        write_markers_c3d(out.root / "markers.c3d", rows, model.markers.names, P, fps, units)
     return len(rows)
 
 
@@ -334,10 +347,12 @@ def _gain(model: FaceModel, gain) -> np.ndarray | None:
     return None if (g == 1.0).all() else g
 
 
-def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None, dynamics=None, fps=None, head=None) -> dict:
+def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None, dynamics=None, fps=None, head=None,
+            frame=None) -> dict:
     """The run record's inputs (:mod:`facesim.runfolder`): what the results depend on. The gain
-    and the head motion only when there are some and the integration options (with the frame
-    rate) only in a dynamic run, so the record of a quasistatic run without them reads as before."""
+    and the head motion only when there are some, the integration options (with the frame rate)
+    only in a dynamic run and the output frame only when it is not facesim's, so the record of a
+    quasistatic run without them reads as before."""
     inputs = {"model": parts(model), "activations": fingerprint(A), "frames": fingerprint(frames),
               "jaw": fingerprint(np.ascontiguousarray(J)),
               "jaw_model": {"name": jaw_model.name, "content": fingerprint(jaw_model)}, "simulator": describe(setup)}
@@ -347,18 +362,21 @@ def _inputs(model: FaceModel, A, frames, J, jaw_model, setup, gain=None, dynamic
         inputs["dynamics"] = {**describe(dynamics), "fps": fps}
     if head is not None:
         inputs["head"] = fingerprint(np.ascontiguousarray(head))
+    if frame is not None and not frame.is_identity:
+        inputs["output_frame"] = frame.name
     return inputs
 
 
 def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, caption: str = "",
-          skin: bool = True, png: bool = True, colliders=(), a=None) -> None:
-    """The skin PLY and, with ``options.render``, the PNG of frame ``k`` at positions ``x`` (with the
-    posed external ``colliders``; ``a``: the frame's activations, for ``color_by="activation"``)."""
+          skin: bool = True, png: bool = True, colliders=(), a=None, frame=None) -> None:
+    """The skin PLY (in the output ``frame``, None: facesim's) and, with ``options.render``, the
+    PNG of frame ``k`` at positions ``x`` (with the posed external ``colliders``; ``a``: the
+    frame's activations, for ``color_by="activation"``)."""
     from facesim.export import export_skin
 
     x = np.where(np.isfinite(x), x, model.X)   # a diverged solve must not break the files
     if skin:
-        export_skin(model, out.skin(k), x)
+        export_skin(model, out.skin(k), x, frame=frame)
     if png and options.render:
         from facesim.viz.render import render_model
 
@@ -369,7 +387,8 @@ def _draw(out: _Out, model: FaceModel, k: int, x, options: SimulateOptions, capt
 
 def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, jaw_model="rigid", colliders=(),
              options: SimulateOptions | None = None, resume: bool = False, overwrite: bool = False,
-             progress: bool = True, info: dict | None = None, gain=None, head=None) -> dict:
+             progress: bool = True, info: dict | None = None, gain=None, head=None,
+             output_frame="facesim") -> dict:
     """Simulate a sequence of frames and write the results into ``out_dir`` (see the module doc).
 
     Parameters
@@ -399,6 +418,10 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
         moves with it, posed relative to it by ``jaw``), or None for a fixed head: moving Dirichlet
         conditions on the bones (Sifakis 2005 section 9's head shake; what ``solve-mocap --head
         solve`` writes to ``head.csv``). Markers and meshes are written in the world.
+    output_frame : ``"facesim"`` (default), ``"input"`` (the input frame and units of an imported
+        model) or an :class:`~facesim.output_frame.OutputFrame`: the frame of the skin PLYs and the
+        marker files (the state files stay in facesim's). Recorded in ``run.json`` (a resume in
+        another frame is refused) and ``report.json`` (``output_frame``).
 
     With ``options.dynamic`` the frames are integrated in time (see the module doc and
     :mod:`facesim.fem.dynamics`).
@@ -412,6 +435,7 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     from facesim.session import Simulation
 
     options = options or SimulateOptions()
+    frame = resolve_output_frame(model, output_frame, (info or {}).get("model"))
     setup = EquilibriumOptions(newton=options.newton, teeth_contact=options.teeth_contact,
                                lip_contact=options.lip_contact, colliders=tuple(colliders),
                                contact_stiffness=options.contact_stiffness)   # checked before anything runs
@@ -453,12 +477,13 @@ def simulate(model: FaceModel, activations, out_dir, *, frames=None, jaw=None, j
     out = _Out(out_dir)
     folder = RunFolder(out.root, "simulate", resume, overwrite)
     with folder:   # one run at a time in the folder, from here until report.json is written
-        folder.start(_inputs(model, A, frames, J, jaw_model, setup, gain, dynamics, options.fps, H), out.holds_a_run,
+        folder.start(_inputs(model, A, frames, J, jaw_model, setup, gain, dynamics, options.fps, H, frame),
+                     out.holds_a_run,
                      out.clear,
                      info={**(info or {}), "model_fingerprint": fingerprint(model)})
         gains = None if gain is None else {n: float(g) for n, g in zip(model.muscles.names, gain) if g != 1.0}
         return _run(out, model, A, frames, J, jaw is not None, jaw_model, colliders, options, resume, progress,
-                    {**(info or {}), "gain": gains, "head_motion": H is not None}, simulation, H)
+                    {**(info or {}), "gain": gains, "head_motion": H is not None}, simulation, H, frame)
 
 
 def _head(head, n: int):
@@ -474,7 +499,7 @@ def _head(head, n: int):
 
 
 def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, colliders, options: SimulateOptions,
-         resume: bool, progress: bool, info: dict | None, simulation, H=None) -> dict:
+         resume: bool, progress: bool, info: dict | None, simulation, H=None, frame=FACESIM) -> dict:
     """The frames of :func:`simulate` in a claimed folder: the reused ones redrawn where needed, the
     others solved and written; returns the summary."""
     from tqdm import tqdm
@@ -506,6 +531,8 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
         "frames": len(frames), "first_frame": int(frames[0]), "last_frame": int(frames[-1]),
         "resumed_at_frame": int(frames[n_done]) if resume and n_done < len(frames) else None,
         "reused_frames": n_done,
+        "output_frame": {**frame.describe(), "files": "skin/*.ply, markers.csv, markers.trc, markers.c3d; state/*.npz "
+                                                      "stay in facesim's frame (mm)"},
     }
     atomic_write(out.report, lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))
 
@@ -535,7 +562,8 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
         if skin or png:
             posed = simulation().posed_colliders(k, Controls(A[i], jaw=jaw_at(i), head=head_at(i))) \
                 if png and colliders else ()
-            _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed, a=A[i])
+            _draw(out, model, k, _load_x(out, k, model), options, skin=skin, png=png, colliders=posed, a=A[i],
+                  frame=frame)
 
     frame_log = FrameLog(out.frames_csv, log_header, old_rows)
     marker_log = FrameLog(out.markers_csv, mk_header, old_marks)
@@ -553,11 +581,11 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
                     f = simulation().step(A[i], jaw=jaw_at(i), head=head_at(i), frame=k, x0=warm(i))
                 x, converged = f.x, f.converged
                 seconds = f.seconds if f.report is not None else time.perf_counter() - t0
-                write_frame(out.root, model, k, x, A[i], J[i], converged, f.error, extra)
+                write_frame(out.root, model, k, x, A[i], J[i], converged, f.error, extra, frame)
                 _draw(out, model, k, x, options, "" if converged else " (not converged)", skin=False,
                       colliders=f.colliders, a=A[i])
                 P = model.marker_positions(x) if converged else np.full((model.n_markers, 3), np.nan)
-                marker_log.add(marker_csv_line(k, P))
+                marker_log.add(marker_csv_line(k, frame.points_mm(P), frame.units))
                 row = _frame_row(k, f, seconds)
                 if options.dynamic:
                     row.update(substeps=n_steps, kinetic_energy_mJ=simulation().kinetic_energy(state.v))
@@ -580,9 +608,9 @@ def _run(out: _Out, model: FaceModel, A, frames, J, posed_jaw: bool, jaw_model, 
 
         def trc():
             if rows:
-                data = read_markers_csv(out.markers_csv)
-                write_trc(out.trc, data.frames, data.names, data.P, options.fps)
-                write_markers_c3d(out.root / "markers.c3d", data.frames, data.names, data.P, options.fps)
+                data = read_markers_csv(out.markers_csv, frame.units)   # mm, in the output frame's axes
+                write_trc(out.trc, data.frames, data.names, data.P, options.fps, frame.units)
+                write_markers_c3d(out.root / "markers.c3d", data.frames, data.names, data.P, options.fps, frame.units)
 
         def video():
             if status == "complete" and options.video:

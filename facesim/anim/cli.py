@@ -104,6 +104,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--solver", choices=("amg", "direct", "pardiso"), default="amg",
                    help="linear solver of --simulate: algebraic multigrid + CG, sparse LU, or MKL PARDISO "
                         "(default: %(default)s)")
+    p.add_argument("--output-frame", choices=("facesim", "input"), default="facesim",
+                   help="the frame of --simulate's skin and marker files, as in facesim simulate: facesim (mm) or "
+                        "input, the frame and units of the meshes an imported model was made from "
+                        "(default: %(default)s)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar (--simulate)")
 
 
@@ -360,6 +364,13 @@ def _finish(args, model, seq, info: dict) -> int:
 
     contact = json.loads(seq.setup) if seq.setup else {}
     colliders = contact.get("colliders") or []
+    frame = None
+    if args.simulate:   # before anything is written: a model without an input frame is one line
+        from facesim.output_frame import output_frame
+
+        frame = output_frame(model, args.output_frame, args.model)
+    elif args.output_frame != "facesim":
+        print("facesim: warning: --output-frame is ignored without --simulate", file=sys.stderr)
     if args.simulate and colliders:
         raise FacesimError(f"--simulate: the sources were solved with {len(colliders)} external collider(s), which a "
                            "controls folder does not carry; run 'facesim simulate --controls-from OUT_DIR' with the "
@@ -376,10 +387,10 @@ def _finish(args, model, seq, info: dict) -> int:
         print("note: a source bound its markers to the capture (--bind-frames); simulations use the model's markers")
     if not args.simulate:
         return 0
-    return _simulate(args, model, seq, out / SIM_FOLDER, contact)
+    return _simulate(args, model, seq, out / SIM_FOLDER, contact, frame)
 
 
-def _simulate(args, model, seq, folder: Path, contact: dict) -> int:
+def _simulate(args, model, seq, folder: Path, contact: dict, frame=None) -> int:
     from facesim.budget import default_frame_seconds
     from facesim.constants import CONTACT_STIFFNESS
     from facesim.fem.newton import NewtonOptions
@@ -394,7 +405,8 @@ def _simulate(args, model, seq, folder: Path, contact: dict) -> int:
                  resume=args.resume, overwrite=args.overwrite, progress=not args.quiet, gain=seq.gain,
                  info={"model": str(args.model), "controls_from": str(args.output),
                        "activations": str(Path(args.output) / "activations.csv"),
-                       "jaw": str(Path(args.output) / "jaw.csv") if seq.jaw is not None else None})
+                       "jaw": str(Path(args.output) / "jaw.csv") if seq.jaw is not None else None},
+                 output_frame=frame or "facesim")
     reused = f", {s['reused_frames']} reused from the earlier run" if s["reused_frames"] else ""
     print(f"simulated {s['frames']} frames ({s['converged']} of {s['finished_frames']} converged{reused}) in "
           f"{s['wall_seconds']:.1f} s -> {folder}")

@@ -47,7 +47,9 @@ synced to disk; ``resume`` keeps the frames already written and solves only the 
   ``skin/frame_KKKKK.ply`` and ``state/frame_KKKKK.npz`` per frame, written before the frame's log
   lines, at the fit's equilibrium moved to first order to the clipped controls (no equilibrium is
   solved again; a failed frame's files hold the state it was left in, ``converged`` 0), and when
-  the run ends ``markers.csv`` / ``markers.trc`` of the model's markers at those states;
+  the run ends ``markers.csv`` / ``markers.trc`` / ``markers.c3d`` of the model's markers at those
+  states; the skin and marker files in the ``output_frame`` (facesim's, or the input frame and
+  units of an imported model: :mod:`facesim.output_frame`), the state files in facesim's;
 * ``chunks/`` while frames finish out of order: the four logs of the frames solved after a
   still unfinished one. The files above always hold the longest finished prefix of the sequence,
   in frame order; a frame moves there as soon as every frame before it is written, and
@@ -97,6 +99,7 @@ from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, default_
 from facesim.inverse.parallel import SimulatorSpec, solve_on_cluster
 from facesim.mocap.binding import bind_neutral
 from facesim.mocap.stabilise import check_window, stabilise
+from facesim.output_frame import output_frame as resolve_output_frame
 from facesim.runfolder import UNRECORDED, RunFolder, describe, fingerprint, finish, parts
 
 LOSSES = ("l2", "huber", "cauchy")
@@ -535,7 +538,7 @@ def _solve_here(sim, space, options, frames, P, runs, starts):
 
 def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None = None, start: Controls | None = None,
           resume: bool = False, overwrite: bool = False, progress: bool = True, client=None, neutral=None,
-          info: dict | None = None, fps: float = 30.0) -> dict:
+          info: dict | None = None, fps: float = 30.0, output_frame="facesim") -> dict:
     """Fit every frame of ``P (F, r, 3)`` (mm, the model's marker order, NaN missing; frame numbers
     ``frames (F,)``, unique) and write the results into ``out_dir`` (see the module doc).
 
@@ -555,6 +558,9 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     stabilisation); the model's markers are first rebound to where it puts
     them (:func:`facesim.mocap.binding.rebind_markers`, Sifakis 2005's binding of the capture to
     the skin). ``fps``: the frame rate (Hz) of ``markers.trc`` with ``options.write_meshes``.
+    ``output_frame``: ``"facesim"``, ``"input"`` or an :class:`~facesim.output_frame.OutputFrame`,
+    the frame of the ``write_meshes`` skin and marker files (recorded: a resume in another frame
+    is refused; ``report.json``'s ``output_frame`` says which).
     Returns the summary (also written to ``report.json``)."""
     options = options or TrackOptions()
     folder = RunFolder(out_dir, "solve-mocap", resume, overwrite)
@@ -571,6 +577,9 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
     if len(np.unique(frames)) != len(frames):
         raise FacesimError("frames: expected unique frame numbers")
     record = _inputs(local, P, frames, neutral, start)
+    frame = resolve_output_frame(model, output_frame, (info or {}).get("model"))
+    if options.write_meshes and not frame.is_identity:   # recorded only then: older records still resume
+        record["output_frame"] = frame.name
     rebinding = None
     if neutral is not None:
         bound, rebinding = bind_neutral(local, neutral, options.head)
@@ -588,7 +597,7 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         folder.start(record, functools.partial(_holds_a_run, folder.root), functools.partial(_clear, folder.root),
                      info=info)
         return _track(local, spec, client, options, frames, P, folder.root, chunk, start, rebinding, resume, progress,
-                      info, n_workers, fps)
+                      info, n_workers, fps, frame)
 
 
 def _inputs(sim, P, frames, neutral, start) -> dict:
@@ -624,7 +633,7 @@ def _clear(out: Path) -> None:
 
 
 def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start, rebinding, resume, progress, info,
-           n_workers, fps) -> dict:
+           n_workers, fps, frame) -> dict:
     """The frames of :func:`track` in a claimed folder."""
     from tqdm import tqdm
 
@@ -650,7 +659,7 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
         from facesim.simulate import redraw_skin, write_frame, write_marker_files
 
         for k in outputs.done:   # a skin lost since: drawn again from its state
-            redraw_skin(out, model, k)
+            redraw_skin(out, model, k, frame)
     runs = _runs(n, chunk, done)
     cold = _Start(start or Controls(np.zeros(model.n_muscles), jaw=_rest_jaw(space)))
     starts, restored = [], 0
@@ -682,6 +691,9 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
                "outliers": {k: v for k, v in previous.items() if k.lstrip("-").isdigit() and int(k) in outputs.done},
                "warm_starts_restored": restored, "status": "running",
                "jaw_model_used": _jaw_record(local, spec)}
+    if options.write_meshes:
+        summary["output_frame"] = {**frame.describe(), "files": "skin/*.ply, markers.csv, markers.trc, markers.c3d; "
+                                                                "state/*.npz stay in facesim's frame (mm)"}
     clipped = {k: v for k, v in clipped_before.items() if k.lstrip("-").isdigit() and int(k) in outputs.done}
     t_start = time.perf_counter()
     solved: dict[int, _Solved] = {}
@@ -695,7 +707,7 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
             for s, handed_on in results:
                 k, c = int(frames[s.index]), s.index // chunk
                 if s.files is not None:   # before the lines: a written frame has its files
-                    write_frame(out, model, k, *s.files)
+                    write_frame(out, model, k, *s.files, frame=frame)
                 _save_warm(_warm_path(out, k), k, handed_on)   # before the lines: a written frame has its warm start
                 outputs.add(s.index, s.lines)
                 if s.clipped[0] or s.clipped[2]:
@@ -738,7 +750,7 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
 
         def markers():
             if options.write_meshes:
-                write_marker_files(out, model, [k for k in map(int, frames) if k in outputs.done], fps)
+                write_marker_files(out, model, [k for k in map(int, frames) if k in outputs.done], fps, frame)
 
         def report():
             atomic_write(out / "report.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=2) + "\n"))

@@ -105,31 +105,44 @@ def marker_csv_header(names) -> str:
     return ",".join(["frame"] + [f"{n}_{c}" for n in names for c in "xyz"]) + "\n"
 
 
-def marker_csv_line(frame: int, p) -> str:
-    """One marker CSV row (with newline): ``frame`` and ``p (N, 3)`` mm, NaN written as ``NaN``."""
-    return ",".join([str(int(frame))] + [_fmt(v, "NaN") for v in np.asarray(p, dtype=np.float64).ravel()]) + "\n"
+def _units(units: str) -> float:
+    if units not in UNITS_MM:
+        raise FacesimError(f"units: expected one of {', '.join(UNITS_MM)}, got {units!r}")
+    return UNITS_MM[units]
 
 
-def write_markers_csv(path, frames, names, P) -> Path:
-    """Write marker trajectories ``P (F, N, 3)`` mm of ``frames (F,)`` to a CSV file; return its path."""
+def marker_csv_line(frame: int, p, units: str = "mm") -> str:
+    """One marker CSV row (with newline): ``frame`` and ``p (N, 3)`` mm, written in ``units``
+    (``"mm"``, ``"cm"`` or ``"m"``; 1e-6 mm resolution in each), NaN written as ``NaN``."""
+    scale = _units(units)
+    decimals = DECIMALS + round(math.log10(scale))
+    values = np.asarray(p, dtype=np.float64).ravel() / scale
+    return ",".join([str(int(frame))] + [_fmt(v, "NaN", decimals) for v in values]) + "\n"
+
+
+def write_markers_csv(path, frames, names, P, units: str = "mm") -> Path:
+    """Write marker trajectories ``P (F, N, 3)`` mm of ``frames (F,)`` to a CSV file, its numbers
+    in ``units`` (default mm: a CSV says no unit, so a reader must be told another); return its path."""
     frames, names, P = _check(frames, names, P)
-    text = marker_csv_header(names) + "".join(marker_csv_line(k, p) for k, p in zip(frames, P))
+    text = marker_csv_header(names) + "".join(marker_csv_line(k, p, units) for k, p in zip(frames, P))
     return atomic_write(path, lambda tmp: tmp.write_text(text))
 
 
-def read_markers_csv(path) -> MarkerData:
-    """Read a marker CSV (``frame,<name>_x,<name>_y,<name>_z,...``, mm, NaN or empty = missing).
+def read_markers_csv(path, units: str = "mm") -> MarkerData:
+    """Read a marker CSV (``frame,<name>_x,<name>_y,<name>_z,...``, NaN or empty = missing), its
+    numbers in ``units`` (default mm), into mm.
 
     Marker names must not themselves end in ``_x``, ``_y`` or ``_z`` (``lip_x_x`` is refused:
     most likely a mangled header). Frame numbers are integers >= 0, increasing.
     """
+    scale = _units(units)
     example = "frame,chin_x,chin_y,chin_z,..."
     table = read_table(path, "marker file", example=example)
     names = _csv_marker_names(table)
     columns = table.header[1:]
     P = numbers(table, columns, allow_missing=True).reshape(len(table.rows), len(names), 3)
     _check_whole_markers(table, P, columns)
-    return MarkerData(names, frame_numbers(table), P, units="mm")
+    return MarkerData(names, frame_numbers(table), P * scale if scale != 1.0 else P, units=units)
 
 
 _COORDINATE_END = re.compile(r"_[xyz]$")

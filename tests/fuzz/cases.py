@@ -485,6 +485,8 @@ CACHE_OPTIONS = (
     ((("--c3d", "{C}/o.csv"),), G), ((("--usd", None), ("--pvd", None), ("--c3d", None)), G),
     ((("--usd", "{C}/o.usd"),), V), ((("--usd", "{C}/o.usdc"),), V), ((("--model", "{B}/nothing.npz"),), G),
     ((("--model", "{M}/face_coarse.npz"),), G),   # another model than the run's
+    ((("--output-frame", "input"),), G),   # the box model was not imported: no input frame
+    ((("--output-frame", "facesim"),), V), ((("--output-frame", "world"),), G),
 )
 RENDER_OPTIONS = (
     ((("--size", "0x0"),), G), ((("--size", "16x16"),), V), ((("--size", "100000x1"),), G),
@@ -523,6 +525,7 @@ SIMULATE_OPTIONS = (
     ((("--teeth-contact",),), E), ((("--lip-contact",),), E), ((("--activations", None),), G),
     ((("--model", None),), G), ((("-o", None),), G), ((("--collider", ""),), G), ((("--frobnicate", "1"),), G),
     ((("--model", "{B}/a.csv"),), G), ((("--model", "{B}/rp.npz"),), G),
+    ((("--output-frame", "input"),), G), ((("--output-frame", ""),), G),   # the box model has no input frame
 )
 SOLVE_OPTIONS = (
     ((("--layout", "capture"),), E), ((("--layout", "model"), ("--head-markers", "head_L,head_R")), G),
@@ -557,6 +560,7 @@ SOLVE_OPTIONS = (
     ((("--markers", "{B}/markers.trc"), ("--units", "cm")), G),
     ((("--head", "solve"),), E), ((("--head", "solve"), ("--head-smoothing", "3")), E),
     ((("--head", "solve"), ("--write-meshes",)), E), ((("--head", "tilt"),), G),
+    ((("--write-meshes",), ("--output-frame", "input")), G), ((("--output-frame", "input"),), V),   # ignored: a warning
 )
 EDIT_OPTIONS = (
     ((("--factor", "-1"),), G), ((("--factor", "nan"),), G), ((("--factor", "inf"),), G), ((("--factor", "x"),), G),

@@ -248,3 +248,16 @@ def test_bad_inputs_are_one_line(tmp_path, capsys):
         err = capsys.readouterr().err
         assert code == 2, words
         assert expect in err and "Traceback" not in err, (words, err)
+
+
+def test_output_frame_input_writes_the_bones_back_onto_their_files(volume_model, tmp_path):
+    """``model export --output-frame input`` (issue 16, item 1): the imported mandible and maxilla,
+    written in the input frame, are the input files' vertices again (metres, the data's own axes)."""
+    from scipy.spatial import cKDTree
+
+    assert main(["model", "export", str(volume_model), "--surfaces", str(tmp_path), "--output-frame", "input"]) == 0
+    for surface, name in (("mandible", "mandible"), ("cranium", "maxilla")):   # the cranium's one part
+        got = trimesh.load(tmp_path / f"{surface}.ply", process=False).vertices
+        original = trimesh.load(BADIN / f"{name}.obj", process=False).vertices
+        assert np.abs(got).max() < 1.0   # metres
+        assert cKDTree(original).query(got)[0].max() < 1e-9   # m: 1e-6 mm
