@@ -30,27 +30,31 @@ reference point at rest):
 - Points outside the envelope are projected onto the shield (the closest point of the
   parameterised solid), so the rig only produces poses the subject could reach.
 - ``detect_border`` -- the six border curves found in an unlabelled capture (no movement labels),
-  from the reference-point cloud alone, so the shield can be built from any capture that traced
-  the borders. In the horizontal (x, z) sections of the cloud the envelope is a hexagon whose
-  corners, clockwise, are the posterior, right posterior, right anterior, anterior, left
-  anterior and left posterior curves at that height:
+  from the reference-point cloud alone, however the capture covered the border: the border
+  protocol in any order and speed, or mostly chewing with a few maximal excursions. The shield
+  is then the envelope of what was captured:
 
-  * the midline runs from the rest position (the frame origin) to the deepest point of the
-    cloud; the posterior and anterior curves are the back-most and front-most points within
-    ``band`` mm of it;
-  * each curve's top, where it leaves tooth contact, is the cloud's extreme point in an upward
-    tilted direction (rest itself for the posterior curve): right posterior back-right-up,
-    right anterior front-right-up, and mirrored on the left;
-  * from the tops down, in windows of ``window`` mm of height every ``step`` mm, each corner
-    curve takes the window's extreme point along the bisector of the outward normals of the two
-    hexagon edges meeting at it (edges between the previous window's corners), so the search
-    direction follows the section as it changes from the wide contact hexagon to the thin arch
-    at the maximum opening;
-  * a pick is accepted only next to the curve so far (within 0.5 mm + 1.5 x the height
-    travelled), and a curve ends when ``gap`` mm of height pass without one: it does not run
-    along the bottom face to the midline.
+  * consecutive frames are joined by the segment between them (the jaw went that way), so a
+    border movement passed in two or three frames still bounds the cloud;
+  * the cloud is cut into horizontal sections every ``step`` mm of height, each the section of
+    the convex hull of the points within ``slab`` mm of it (the envelope is convex at that
+    scale, not over its whole height);
+  * the midline runs from the rest position (the frame origin) to the deepest point; the
+    posterior and anterior curves are the back and front of the sections of the points within
+    ``band`` mm of it (the bottom of the envelope can be concave there: the lateral openings end
+    behind the maximum opening);
+  * the four corner curves are searched on the right and left halves of the sections: each
+    starts where it leaves tooth contact, the cloud's extreme point in an upward tilted direction
+    (right posterior back-right-up, right anterior front-right-up, mirrored on the left), takes
+    in each section the extreme point along the bisector of the outward normals of the two
+    hexagon edges meeting at it (edges to the nearest corners at least ``apart`` mm away, so two
+    corners on one border path act as one; the extreme nearest the curve so far among those
+    within ``tie`` mm), and ends where it turns onto the bottom face (moving inward faster than
+    down).
 
-  The picks are then fitted like labelled frames (``Shield.from_points``).
+  A movement the capture lacks altogether (no wide opening, protrusion, or lateral excursion to
+  one side) is named in a one-line error. The curves are then fitted like labelled frames
+  (``Shield.from_points``).
 """
 
 from __future__ import annotations
@@ -60,6 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline, make_lsq_spline
 from scipy.linalg import solve
+from scipy.spatial import ConvexHull, QhullError
 
 from facesim import se3
 from facesim.errors import FacesimError, ModelFileError
@@ -136,7 +141,16 @@ def _untangle(curves: np.ndarray, gap: float = 0.05) -> np.ndarray:
 _RING = ("posterior", "right_posterior", "right_anterior", "anterior", "left_anterior", "left_posterior")
 #: degrees from +x toward +z of the horizontal part of the directions that find the corner tops
 _TOP_DIRECTIONS = {"right_posterior": 210.0, "right_anterior": 120.0, "left_anterior": 60.0, "left_posterior": 330.0}
-_TOP_TILT = 1.0           # weight of the height in those directions
+_TOP_TILT = 1.0           # weight of the height in those directions (and in the corners' ends)
+#: a movement counts as present when at least this many frames go this far (mm) from rest
+_EXCURSION = {"opening": 10.0, "protrusion": 2.0, "lateral": 2.0}
+_EXCURSION_FRAMES = 2
+_CURVE_WORDS = {"posterior": "posterior border (the retruded opening)",
+                "anterior": "anterior border (the protruded opening)",
+                "right_posterior": "right posterior border (the opening from the right lateral excursion)",
+                "right_anterior": "right anterior border (the opening from the right protrusive corner)",
+                "left_anterior": "left anterior border (the opening from the left protrusive corner)",
+                "left_posterior": "left posterior border (the opening from the left lateral excursion)"}
 
 
 def _edge_normal(a, b):
@@ -147,91 +161,184 @@ def _edge_normal(a, b):
     return None if length < 0.5 else np.array([-e[1], e[0]]) / length
 
 
-def detect_border(points, band: float = 0.5, window: float = 2.0, step: float = 0.5, gap: float = 3.0,
-                  jump: float = 0.5, slope: float = 1.5) -> dict[str, np.ndarray]:
-    """The six border movements in an unlabelled cloud (module docstring).
+def _densify(P, spacing: float, link: float) -> np.ndarray:
+    """``P (n, 3)`` followed by points every ``spacing`` mm along the segments between consecutive
+    frames that are more than ``spacing`` and at most ``link`` mm apart (the jaw went that way)."""
+    d = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    k = np.where((d > spacing) & (d <= link), np.ceil(d / spacing).astype(int) - 1, 0)
+    if not k.any():
+        return P
+    i = np.repeat(np.arange(len(d)), k)
+    t = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k) + 1) / np.repeat(k + 1, k)
+    return np.concatenate([P, P[i] + t[:, None] * (P[i + 1] - P[i])])
+
+
+def _hull(q):
+    """Counter-clockwise vertices of the convex hull of the 2D points ``q (k, 2)``, or None."""
+    try:
+        return q[ConvexHull(q).vertices] if len(q) >= 3 else None
+    except (QhullError, ValueError):
+        return None
+
+
+def _section(P, level: float, slab: float):
+    """``(k, 2)`` (x, z) vertices of the section at height ``level`` of the convex hull of the
+    points ``P (n, 3)`` within ``slab`` mm of that height (the hull's edges cut by the plane); the
+    hull of their horizontal projection when they span no volume; None when there are none."""
+    near = P[np.abs(P[:, 1] - level) <= slab]
+    if len(near) < 4:
+        return _hull(near[:, [0, 2]])
+    try:
+        s = ConvexHull(near).simplices
+    except (QhullError, ValueError):
+        return _hull(near[:, [0, 2]])
+    e = np.unique(np.sort(np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [0, 2]]]), axis=1), axis=0)
+    a, b = near[e[:, 0]], near[e[:, 1]]
+    da, db = a[:, 1] - level, b[:, 1] - level
+    cut = (da * db <= 0) & (da != db)
+    q = a[cut] + (da[cut] / (da[cut] - db[cut]))[:, None] * (b[cut] - a[cut])
+    return _hull(q[:, [0, 2]])
+
+
+def _midline_extent(Q, level: float, slab: float):
+    """(back z, front z) mm at height ``level`` of the section of the convex hull of the (y, z)
+    points ``Q (n, 2)`` within ``slab`` mm of that height, or None."""
+    near = Q[np.abs(Q[:, 0] - level) <= slab]
+    v = _hull(near)
+    if v is None:
+        return (near[:, 1].min(), near[:, 1].max()) if len(near) else None
+    u = np.roll(v, -1, axis=0)
+    da, db = v[:, 0] - level, u[:, 0] - level
+    cut = (da * db <= 0) & (da != db)
+    if not cut.any():
+        return None
+    z = v[cut, 1] + da[cut] / (da[cut] - db[cut]) * (u[cut, 1] - v[cut, 1])
+    return z.min(), z.max()
+
+
+def _check_movements(depth, forward, lateral):
+    """Raise a one-line error naming each border movement the capture lacks: ``depth``,
+    ``forward``, ``lateral`` (N,) mm of every frame below, in front of and to the subject's left
+    of the rest position (lateral: of the midline)."""
+    need = _EXCURSION_FRAMES
+    missing = []
+    for name, amount, far, words in (
+            ("wide opening", depth, _EXCURSION["opening"], "drops more than {:.1f} mm below its rest position"),
+            ("protrusion", forward, _EXCURSION["protrusion"], "moves more than {:.1f} mm forward of its rest position"),
+            ("right lateral excursion", -lateral, _EXCURSION["lateral"],
+             "moves more than {:.1f} mm to the subject's right of the midline"),
+            ("left lateral excursion", lateral, _EXCURSION["lateral"],
+             "moves more than {:.1f} mm to the subject's left of the midline")):
+        found = int((amount > far).sum())
+        if found < need:
+            missing.append(f"no {name}: the incisor never {words.format(max(float(amount.max()), 0.0))} "
+                           f"({found} frames beyond {far:g} mm, need at least {need})")
+    if missing:
+        raise FacesimError(f"border detection: {'; '.join(missing)}")
+
+
+def detect_border(points, band: float = 2.0, step: float = 0.5, slab: float = 1.0, link: float = 30.0,
+                  tie: float = 0.3, apart: float = 2.0) -> dict[str, np.ndarray]:
+    """The six border curves of an unlabelled capture (module docstring).
 
     points : (N, 3) mm, reference-point positions in the jaw frame (x left, y up, z forward; the
-        origin is the rest position), including the border movements.
-    band : mm, half-width of the midline band; window, step, gap : mm of height of a search
-        window, between windows, and without a pick before a curve ends; jump, slope : a pick
-        lies within ``jump + slope * (height travelled)`` mm (horizontally) of the curve so far.
-    Returns ``{curve name: indices into points}`` for the ``CURVES``, each from its top down.
+        origin is the rest position), the frames of the capture in time order.
+    band : mm, half-width of the midline strip the posterior and anterior curves are read from
+        (and the overlap of the right and left halves); step : mm of height between sections;
+        slab : mm, half-height of the local hull a section is cut from; link : mm, consecutive
+        frames at most this far apart are joined by the segment between them; tie : mm, corner
+        candidates this close to the extreme one count as extreme (the one nearest the curve so
+        far is taken); apart : mm, corners closer than this act as one when the search
+        directions are turned.
+    Returns ``{curve name: (n, 3) mm points}`` for the ``CURVES``, each from its top down.
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(P) < 50 or not np.isfinite(P).all():
-        raise FacesimError(f"border detection: expected at least 50 finite reference points, got {len(P)}")
-    x, y, z = P.T
-    xz = P[:, [0, 2]]
+    if len(P) < 20 or not np.isfinite(P).all():
+        raise FacesimError(f"border detection: expected at least 20 finite reference points, got {len(P)}")
     rest = int(np.argmin(np.linalg.norm(P, axis=1)))
-    deep = int(np.argmin(y))
-    if y[rest] - y[deep] < 10.0:
-        raise FacesimError(f"border detection: the reference point opens only {y[rest] - y[deep]:.1f} mm "
-                           f"(expected openings to the maximum among the poses)")
+    deep = int(np.argmin(P[:, 1]))
+    opening = P[rest, 1] - P[deep, 1]
+    top_y, bottom_y, x_rest, x_deep = P[rest, 1], P[deep, 1], P[rest, 0], P[deep, 0]
 
-    def x_mid(height):         # the midline: rest to the deepest point
-        return x[rest] + (y[rest] - height) / (y[rest] - y[deep]) * (x[deep] - x[rest])
+    def x_mid(height):          # the midline: rest to the deepest point
+        return x_rest + (top_y - height) / max(opening, 1e-9) * (x_deep - x_rest)
 
-    def side(c, idx, height):  # the points idx on the curve's side of the midline (at heights ``height``)
-        offset = x[idx] - x_mid(height)
-        return idx[offset < 0] if c.startswith("right") else idx[offset > 0]
-
-    everything = np.arange(len(P))
+    _check_movements(top_y - P[:, 1], P[:, 2] - P[rest, 2], P[:, 0] - x_mid(P[:, 1]))
+    Q = _densify(P, 0.5, link)
+    x, y, z = Q.T
+    xz = Q[:, [0, 2]]
+    offset = x - x_mid(y)
+    halves = {"right": Q[offset <= band], "left": Q[offset >= -band]}
+    strip = Q[np.abs(offset) <= band][:, [1, 2]]
+    everything = np.arange(len(Q))
     tops = {"posterior": rest}
-    on_mid = everything[np.abs(x - x_mid(y)) <= band]
+    on_mid = everything[np.abs(offset) <= band]
     tops["anterior"] = int(on_mid[np.argmax(z[on_mid] + _TOP_TILT * y[on_mid])])
+    direction = {}
     for c, degrees in _TOP_DIRECTIONS.items():
-        idx = side(c, everything, y[everything])
-        if not len(idx):
-            raise FacesimError(f"border detection: no reference points on the {c.split('_')[0]} side")
-        d = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees))])
-        tops[c] = int(idx[np.argmax(xz[idx] @ d + _TOP_TILT * y[idx])])
+        idx = everything[offset < 0] if c.startswith("right") else everything[offset > 0]
+        direction[c] = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees))])
+        tops[c] = int(idx[np.argmax(xz[idx] @ direction[c] + _TOP_TILT * y[idx])])
+    current = {c: xz[tops[c]].copy() for c in _RING}         # each curve's last pick
+    picks = {c: [Q[tops[c]]] for c in _RING}
 
-    current = {c: xz[tops[c]].copy() for c in _RING}       # each curve's last accepted pick
-    height = {c: y[tops[c]] for c in _RING}
-    picks = {c: [tops[c]] for c in _RING}
-    direction: dict[str, np.ndarray] = {}
-
-    def turn():               # search directions: bisectors of the edge normals at each corner
+    def turn():
+        # a corner's search direction: the bisector of the outward normals of the hexagon edges to
+        # the nearest corners, on either side, at least ``apart`` mm away (coincident corners --
+        # a section with one corner where the hexagon has two -- act as one)
         for k, c in enumerate(_RING):
             if c in ("posterior", "anterior"):
                 continue
-            n1 = _edge_normal(current[_RING[k - 1]], current[c])
-            n2 = _edge_normal(current[c], current[_RING[(k + 1) % len(_RING)]])
-            normals = [n for n in (n1, n2) if n is not None]
-            if not normals or (len(normals) < 2 and c in direction):
-                continue        # a degenerate edge (the corners meet): keep the last direction
-            v = np.sum(normals, axis=0)
-            if np.hypot(v[0], v[1]) > 1e-9:
-                direction[c] = v / np.hypot(v[0], v[1])
-        for c in _RING[1:3] + _RING[4:]:
-            if c not in direction:
-                raise FacesimError(f"border detection: the {c.replace('_', ' ')} corner coincides with its "
-                                   f"neighbours at tooth contact (expected lateral and protrusive border movements)")
+            normals = []
+            for sign in (-1, 1):
+                other = next((current[_RING[(k + sign * t) % 6]] for t in range(1, 6)
+                              if np.hypot(*(current[_RING[(k + sign * t) % 6]] - current[c])) >= apart), None)
+                if other is not None:
+                    normals.append(_edge_normal(other, current[c]) if sign < 0 else _edge_normal(current[c], other))
+            if len(normals) == 2:
+                v = normals[0] + normals[1]
+                if np.hypot(v[0], v[1]) > 1e-9:
+                    direction[c] = v / np.hypot(v[0], v[1])
 
     turn()
-    alive = list(_RING)
-    level = y[rest] - step
-    while level > y[deep] - window / 2 and alive:
-        in_window = everything[np.abs(y - level) <= window / 2]
-        for c in list(alive):
-            idx = in_window[y[in_window] < y[tops[c]]]
-            if c in ("posterior", "anterior"):
-                idx = idx[np.abs(x[idx] - x_mid(level)) <= band]
-                i = None if not len(idx) else int(idx[np.argmin(z[idx]) if c == "posterior" else np.argmax(z[idx])])
-            else:
-                idx = side(c, idx, level)
-                i = None if not len(idx) else int(idx[np.argmax(xz[idx] @ direction[c])])
-            if i is not None and np.hypot(*(xz[i] - current[c])) <= jump + slope * abs(height[c] - y[i]):
-                if i not in picks[c]:
-                    picks[c].append(i)
-                if y[i] < height[c]:
-                    current[c], height[c] = xz[i].copy(), y[i]
-            if height[c] - level > gap + window / 2:
-                alive.remove(c)
+    level = top_y - step
+    while level > bottom_y:
+        found = {}
+        extent = _midline_extent(strip, level, slab)
+        if extent is not None:
+            found["posterior"] = np.array([x_mid(level), extent[0]])
+            found["anterior"] = np.array([x_mid(level), extent[1]])
+        for name, half in halves.items():
+            section = _section(half, level, slab)
+            if section is None:
+                continue
+            section = section[(section[:, 0] < x_mid(level)) if name == "right" else (section[:, 0] > x_mid(level))]
+            if not len(section):
+                continue
+            for c in (f"{name}_posterior", f"{name}_anterior"):
+                v = section @ direction[c]
+                close = np.flatnonzero(v >= v.max() - tie)
+                found[c] = section[close[np.argmin(np.linalg.norm(section[close] - current[c], axis=1))]]
+        for c, q in found.items():
+            if level < y[tops[c]]:
+                current[c] = q
+                picks[c].append(np.array([q[0], level, q[1]]))
         turn()
         level -= step
-    return {c: np.array(picks[c], dtype=np.int64) for c in CURVES}
+    border = {}
+    for c in CURVES:
+        curve = np.array(picks[c])
+        if c in ("posterior", "anterior"):
+            curve = np.vstack([curve, Q[deep]])
+        else:   # a corner ends where it turns onto the bottom face (moving inward faster than down)
+            outward = (x_mid(curve[:, 1]) - curve[:, 0]) * (1 if c.startswith("right") else -1)
+            curve = curve[:int(np.argmax(outward - _TOP_TILT * curve[:, 1])) + 1]
+        height = curve[0, 1] - curve[:, 1].min()
+        if len(curve) < 8 or height < 5.0:
+            raise FacesimError(f"border detection: the {_CURVE_WORDS[c]} spans only {height:.1f} mm of height "
+                               f"({len(curve)} sections, need at least 8 over 5 mm)")
+        border[c] = curve
+    return border
 
 
 class Shield:
@@ -275,7 +382,7 @@ class Shield:
         """Shield from an unlabelled cloud of reference-point positions ``(N, 3)`` mm (jaw frame)
         that includes the border movements (:func:`detect_border`; ``options`` go to it)."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        return cls.from_points({c: points[i] for c, i in detect_border(points, **options).items()})
+        return cls.from_points(detect_border(points, **options))
 
     def _edges(self, s, derivative: bool = False):
         """Posterior and anterior section edges at s (N, 3) -> (N, 3) each, plus their s_x and s_y
@@ -527,6 +634,21 @@ class PosseltRig:
             raise ModelFileError(path, f"unreadable posselt rig data ({type(exc).__name__}: {exc})") from None
 
 
+def _check_units(p, omega):
+    """A one-line error when the reference point ``p (N, 3)`` mm moves far too little for the
+    rotations ``omega (N, 3)`` rad of the poses (translations in metres or centimetres): a jaw
+    turning by theta moves its incisors, ~100 mm from the joints, by ~100 theta mm."""
+    turn = float(np.linalg.norm(omega, axis=1).max())
+    reach = float(np.linalg.norm(p, axis=1).max())
+    if turn < np.radians(5.0) or reach >= 20.0 * turn:
+        return
+    factor = 100.0 * turn / max(reach, 1e-12)
+    unit = "metres" if factor > 300 else "centimetres" if factor < 30 else "another unit"
+    raise FacesimError(f"poses: the reference point moves at most {reach:.3g} mm while the mandible turns by up to "
+                       f"{np.degrees(turn):.0f} degrees, which moves the incisors by tens of mm: the translations "
+                       f"look about {float(f'{factor:.2g}'):g} times too small ({unit}?); expected millimetres")
+
+
 def fit_posselt(session=None, *, poses=None, reference_point=None, border=None, frame: JawFrame | None = None,
                 centres: int = 300, smoothing: float = 1e-6, scale: float = 10.0, tmj=None) -> PosseltRig:
     """Fit a :class:`PosseltRig` to captured poses.
@@ -558,6 +680,7 @@ def fit_posselt(session=None, *, poses=None, reference_point=None, border=None, 
     local = frame.pose_to_local(poses)
     p = local[:, :3, 3]
     omega = se3.so3_log(local[:, :3, :3])
+    _check_units(p, omega)
     if border is None or isinstance(border, str):
         shield = Shield.from_cloud(p)
     else:
