@@ -1110,7 +1110,9 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     solve.set_defaults(func=cmd_solve_mocap, command_parser=solve)
     add_edit_commands(commands)
-    add_jaw_commands(commands)
+    from facesim.markerless_cli import add_markerless_commands
+
+    add_jaw_commands(commands, more=(add_markerless_commands,))
     return parser
 
 

@@ -108,7 +108,7 @@ def measure_depths(X: np.ndarray, skin: np.ndarray, fields: phantom.HeadFields, 
 
 
 def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads: int = 0,
-               mesh: tuple[np.ndarray, np.ndarray] | None = None) -> FaceModel:
+               mesh: tuple[np.ndarray, np.ndarray] | None = None, subject: phantom.Subject | None = None) -> FaceModel:
     """Build the procedural anatomical face model.
 
     Parameters
@@ -120,6 +120,8 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
     threads : fTetWild threads (0 = all cores).
     mesh : optional ``(X (n, 3) float64, tets (m, 4) int32)`` tet mesh of the flesh to reuse
         (e.g. from an earlier model of the same seed and resolution) instead of running fTetWild.
+    subject : optional explicit :class:`~facesim.anatomy.phantom.Subject` proportions (width,
+        jaw length, soft-tissue depth, ...) instead of the seed's; ``seed`` is then only recorded.
 
     The anatomy, fields and surfaces are deterministic for a given seed and resolution; the
     tetrahedralisation (fTetWild) is not bit-reproducible between runs (wildmeshing/fTetWild#72),
@@ -139,7 +141,7 @@ def build_head(resolution: str = "coarse", seed: int = 0, progress=None, threads
         t0 = t
 
     h, edge_face, edge_back, epsilon = RESOLUTIONS[resolution]
-    sub = phantom.subject_from_seed(int(seed))
+    sub = phantom.subject_from_seed(int(seed)) if subject is None else subject
     fields = phantom.build_fields(sub, h=h, progress=lambda m: say(f"fields: {m}"))
     lap("fields_s")
     say("flesh surface")

@@ -387,9 +387,11 @@ def _at_least(minimum, kind=float, maximum=None):
     return parse
 
 
-def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
+def add_jaw_commands(subparsers, more=()) -> argparse.ArgumentParser:
     """Add ``facesim jaw {fit,eval,retarget,pose,envelope,fit-model,generate}`` to the ``subparsers`` of the
-    ``facesim`` parser; returns the ``jaw`` parser."""
+    ``facesim`` parser, then the commands each of ``more`` adds (called as ``add(jaw_subparsers,
+    at_least)``: packages that may use the FEM, which this one must not import); returns the ``jaw``
+    parser."""
     poses_help = ("poses .npz: poses (N, 4, 4) mandible relative to skull, mm; optional reference_point (3,), "
                   "mandible (P, 3), weights (P,), segment labels")
     jaw = subparsers.add_parser(
@@ -491,6 +493,8 @@ def add_jaw_commands(subparsers) -> argparse.ArgumentParser:
     gen.add_argument("--extremes", action="store_true", help="write the five extremal poses instead of a session")
     gen.add_argument("-o", "--output", required=True, metavar="P.npz", help="poses file to write")
     gen.set_defaults(func=cmd_jaw_generate)
+    for add in more:
+        add(sub, _at_least)
     return jaw
 
 
