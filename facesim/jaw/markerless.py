@@ -468,6 +468,32 @@ class _Calibration:
         return sparse.vstack([sparse.csr_matrix(self.w_fit * J), self.G]).tocsr()
 
 
+def calibration_frames(data: MarkerlessData, count: int = 5) -> np.ndarray:
+    """``(count,)`` indices of the frames of ``data`` (with poses and ``ok``) to calibrate a
+    retargeting with: the paper's handful of calibration poses, the extremes of the jaw's range --
+    the frame nearest rest, then the widest opening, the farthest to the left and to the right,
+    the most protruded (facesim's frame: x left, y up, z forward; the bone points' mean
+    displacement), then, beyond five, farthest-point samples of the bone displacements."""
+    if data.poses is None:
+        raise FacesimError("calibration frames: the data has no jaw poses")
+    ok = np.flatnonzero(data.ok)
+    if len(ok) < count:
+        raise FacesimError(f"calibration frames: {count} wanted, the data has {len(ok)} converged frames")
+    d = data.bone_points()[ok] - data.bone_rest[None]        # (n, B, 3)
+    mean = d.mean(axis=1)
+    picks = [int(np.argmin(np.linalg.norm(d, axis=2).sum(axis=1))), int(np.argmin(mean[:, 1])),
+             int(np.argmax(mean[:, 0])), int(np.argmin(mean[:, 0])), int(np.argmax(mean[:, 2]))]
+    chosen: list[int] = []
+    for i in picks:
+        if i not in chosen and len(chosen) < count:
+            chosen.append(i)
+    flat = d.reshape(len(d), -1)
+    while len(chosen) < count:
+        dist = np.min(np.linalg.norm(flat[:, None] - flat[chosen][None], axis=2), axis=1)
+        chosen.append(int(np.argmax(dist)))
+    return ok[np.array(chosen)]
+
+
 def retarget(pred: Predictor, calibration: MarkerlessData, *, smoothness: float = 1.0, identity: float = 0.1,
              neighbours: int = 6, scale: bool = True) -> Predictor:
     """The predictor ``pred`` (source subject) retargeted to a new subject from a few frames of it
@@ -581,7 +607,7 @@ __all__ = [
     "PREDICTOR_FORMAT",
     "Predictor",
     "alignment",
-    "baseline_poses",
+    "baseline_poses", "calibration_frames",
     "evaluate",
     "load_predictor",
     "pose_error",
