@@ -26,9 +26,18 @@ def _data(path):
     return load_data(path)
 
 
+#: the shipped multi-subject predictor (trained on simulated subjects for the shipped faces' layout)
+SHIPPED = "markerless_jaw.npz"
+
+
 def _predictor(path):
+    """The predictor file ``path``, or the shipped one (``meshes/markerless_jaw.npz``) for None."""
     from facesim.jaw.markerless import load_predictor
 
+    if path is None:
+        from facesim._files import MESHES
+
+        path = MESHES / SHIPPED
     return load_predictor(path)
 
 
@@ -77,7 +86,7 @@ def cmd_train(args) -> int:
             raise FacesimError(f"{p}: {d.n_features} skin features, but {args.data[0]} has {n}; expected datasets of "
                                "the same feature layout")
     pred = train(data, cv_folds=args.cv_folds)
-    save_predictor(pred, args.output)
+    save_predictor(pred, args.output, single=args.float32)
     hp = pred.meta.get("hyper", {})
     print(f"trained on {len(data)} subject(s), {sum(int(d.ok.sum()) for d in data)} frames "
           f"({', '.join(f'{k}={v:g}' for k, v in hp.items() if isinstance(v, (int, float)))}) -> {args.output}")
@@ -95,7 +104,7 @@ def cmd_retarget(args) -> int:
         cal = cal.subset(_frame_list(args.frames, cal.n_frames, args.calibration))
     out = _in(args.calibration, lambda: retarget(pred, cal, smoothness=args.smoothness, identity=args.identity))
     save_predictor(out, args.output)
-    print(f"retargeted {args.predictor} to {args.calibration} from {int(cal.ok.sum())} calibration frames "
+    print(f"retargeted {args.predictor or 'the shipped predictor'} to {args.calibration} from {int(cal.ok.sum())} calibration frames "
           f"-> {args.output}")
     return 0
 
@@ -203,6 +212,10 @@ def cmd_eval(args) -> int:
     return 0
 
 
+SHIPPED_HELP = (f"predictor file (default: the shipped multi-subject predictor meshes/{SHIPPED}, for the shipped "
+                "faces' feature layout)")
+
+
 def add_markerless_commands(jaw_sub, at_least) -> None:
     """``facesim jaw markerless ...`` under the ``jaw`` command's subparsers ``jaw_sub``."""
     ml = jaw_sub.add_parser(
@@ -251,6 +264,8 @@ def add_markerless_commands(jaw_sub, at_least) -> None:
                                     "transform.")
     tr.add_argument("--data", required=True, nargs="+", metavar="D.npz", help="dataset(s); the first is the primary")
     tr.add_argument("--cv-folds", type=at_least(2, int), default=3, help="cross-validation folds (default: 3)")
+    tr.add_argument("--float32", action="store_true",
+                    help="store the support vectors in single precision (half the file; the shipped predictor)")
     tr.add_argument("-o", "--output", required=True, metavar="PRED.npz", help="predictor file to write")
     tr.set_defaults(func=cmd_train)
 
@@ -258,7 +273,7 @@ def add_markerless_commands(jaw_sub, at_least) -> None:
                         description="Per-feature rotation and scale maps from the new subject's features to the "
                                     "predictor's, solved so that the predictor reproduces the calibration frames' "
                                     "known jaw, with smoothness and closeness-to-identity regularisers.")
-    rt.add_argument("--predictor", required=True, metavar="PRED.npz")
+    rt.add_argument("--predictor", metavar="PRED.npz", help=SHIPPED_HELP)
     rt.add_argument("--calibration", required=True, metavar="C.npz",
                     help="a few frames of the new subject with known jaw poses (a dataset file)")
     rt.add_argument("--frames", metavar="I,J,...", help="use only these frames of C.npz (indices)")
@@ -272,7 +287,7 @@ def add_markerless_commands(jaw_sub, at_least) -> None:
                                     "'simulate --jaw' reads (frame,rx,ry,rz,tx,ty,tz: rotation vector about the "
                                     "condyle midpoint, rad, then translation, mm; and an ok column) plus the poses "
                                     "(N, 4, 4) as <stem>_poses.npz, the format 'facesim jaw fit' reads.")
-    pr.add_argument("--predictor", required=True, metavar="PRED.npz")
+    pr.add_argument("--predictor", metavar="PRED.npz", help=SHIPPED_HELP)
     pr.add_argument("--data", metavar="D.npz", help="a dataset (its poses are not needed)")
     pr.add_argument("--skin", metavar="DIR", help="a folder of frame_KKKKK.ply skin meshes of --model's topology "
                                                   "(what simulate writes to OUT/skin), in the skull frame")
@@ -284,7 +299,7 @@ def add_markerless_commands(jaw_sub, at_least) -> None:
                         description="Mean, 95th percentile and max of the per-frame mean distance over the bone "
                                     "feature points (mm) between predicted and true jaw, for the predictor and the "
                                     "Procrustes baseline (Zoss et al. 2019 Table 1).")
-    ev.add_argument("--predictor", required=True, metavar="PRED.npz")
+    ev.add_argument("--predictor", metavar="PRED.npz", help=SHIPPED_HELP)
     ev.add_argument("--data", required=True, metavar="D.npz")
     ev.add_argument("--json", action="store_true", help='print {"predictor": {...}, "baseline": {...}, "frames": N}')
     ev.set_defaults(func=cmd_eval)

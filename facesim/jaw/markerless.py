@@ -563,9 +563,15 @@ _ARRAYS = ("support", "dual", "intercept", "x_mean", "x_scale", "y_mean", "y_sca
            "source_bone_rest", "skin_rest", "bone_rest", "feature_maps")
 
 
-def save_predictor(pred: Predictor, path) -> Path:
-    """Write ``pred`` to ``path`` (one compressed ``.npz`` of arrays and JSON meta), atomically."""
+def save_predictor(pred: Predictor, path, single: bool = False) -> Path:
+    """Write ``pred`` to ``path`` (one compressed ``.npz`` of arrays and JSON meta), atomically.
+    ``single``: the support vectors and dual coefficients -- nearly all of the file -- in float32
+    (half the size; predictions change by ~1e-6 of the jaw's motion, they are read back as
+    float64); used for the shipped predictor."""
     arrays = {k: getattr(pred, k) for k in _ARRAYS}
+    if single:
+        arrays["support"] = arrays["support"].astype(np.float32)
+        arrays["dual"] = arrays["dual"].astype(np.float32)
     return write_npz(path, PREDICTOR_FORMAT, arrays, {"gamma": float(pred.gamma), **pred.meta})
 
 

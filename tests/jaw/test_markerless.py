@@ -311,6 +311,11 @@ def test_save_load_round_trip(source, tmp_path):
         assert np.array_equal(predict_bone_points(back, d), predict_bone_points(p, d))
         assert back.meta == p.meta and back.gamma == p.gamma
     assert load_predictor(tmp_path / "adapted.npz").retargeted
+    # single precision (the shipped predictor): a smaller file, the same jaw to ~1e-5 mm
+    small = save_predictor(pred, tmp_path / "small.npz", single=True)
+    assert small.stat().st_size < 0.7 * (tmp_path / "pred.npz").stat().st_size
+    moved = np.abs(predict_bone_points(pred, data) - data.bone_rest).max()
+    assert np.abs(predict_bone_points(load_predictor(small), data) - predict_bone_points(pred, data)).max() < 1e-5 * moved
 
 
 def test_bad_predictor_files(source, tmp_path):
