@@ -41,6 +41,14 @@ def _predictor(path):
     return load_predictor(path)
 
 
+def _posed(path, purpose: str):
+    """The dataset ``path``, which must hold jaw poses (``purpose``: what needs them)."""
+    d = _data(path)
+    if d.poses is None:
+        raise FacesimError(f"{path}: no jaw poses; {purpose} needs frames with known jaw poses")
+    return d
+
+
 def _in(path, what: str):
     """Run ``what`` with one-line errors prefixed by the file they concern."""
     try:
@@ -77,11 +85,9 @@ def cmd_dataset(args) -> int:
 def cmd_train(args) -> int:
     from facesim.jaw.markerless import save_predictor, train
 
-    data = [_data(p) for p in args.data]
+    data = [_posed(p, "training") for p in args.data]
     n = data[0].n_features
     for p, d in zip(args.data, data):
-        if d.poses is None:
-            raise FacesimError(f"{p}: no jaw poses; training needs frames with known jaw poses")
         if d.n_features != n:
             raise FacesimError(f"{p}: {d.n_features} skin features, but {args.data[0]} has {n}; expected datasets of "
                                "the same feature layout")
@@ -97,9 +103,7 @@ def cmd_retarget(args) -> int:
     from facesim.jaw.markerless import retarget, save_predictor
 
     pred = _predictor(args.predictor)
-    cal = _data(args.calibration)
-    if cal.poses is None:
-        raise FacesimError(f"{args.calibration}: no jaw poses; calibration frames need known jaw poses")
+    cal = _posed(args.calibration, "retargeting")
     if args.frames is not None:
         cal = cal.subset(_frame_list(args.frames, cal.n_frames, args.calibration))
     out = _in(args.calibration, lambda: retarget(pred, cal, smoothness=args.smoothness, identity=args.identity))
@@ -196,9 +200,7 @@ def cmd_eval(args) -> int:
     from facesim.jaw.markerless import evaluate
 
     pred = _predictor(args.predictor)
-    d = _data(args.data)
-    if d.poses is None:
-        raise FacesimError(f"{args.data}: no jaw poses; eval needs frames with known jaw poses")
+    d = _posed(args.data, "eval")
     r = _in(args.data, lambda: evaluate(pred, d))
     if args.json:
         print(json.dumps(r))
