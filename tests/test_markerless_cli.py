@@ -142,3 +142,13 @@ def test_example_05_reports_on_the_datasets(files):
     held = r["heldout"]["retargeted"]
     assert held["frames"] == 1 and held["predictor"]["mean_mm"] < held["baseline"]["mean_mm"]
     assert (tmp / "ex05" / "markerless_errors.png").is_file()
+
+
+def test_shipped_predictor_is_the_default(files, capsys):
+    """Without --predictor, eval uses meshes/markerless_jaw.npz (multi-subject, simulated
+    subjects, the shipped faces' layout): on the shipped coarse face's frames it beats Procrustes."""
+    tmp, run = files
+    capsys.readouterr()
+    assert run("eval", "--data", tmp / "T.npz", "--json") == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["predictor"]["mean_mm"] < r["baseline"]["mean_mm"] / 3
