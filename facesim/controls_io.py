@@ -223,8 +223,11 @@ def read_head_csv(path) -> tuple[np.ndarray, np.ndarray]:
         se3.check_rigid(H, "head", tolerance=1e-3)
     except FacesimError as exc:
         raise FacesimError(f"{table.path}: {exc}") from None
-    U, _, Vt = np.linalg.svd(H[:, :3, :3])
-    H[:, :3, :3] = U @ Vt          # det +1: check_rigid refused reflections
+    R = H[:, :3, :3]
+    loose = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2)) > se3.RIGID_TOLERANCE
+    if loose.any():                # only those: a file of full-precision rotations reads back as written
+        U, _, Vt = np.linalg.svd(R[loose])
+        H[loose, :3, :3] = U @ Vt  # det +1: check_rigid refused reflections
     return frame_numbers(table), H
 
 
