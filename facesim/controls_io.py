@@ -223,10 +223,9 @@ def read_head_csv(path) -> tuple[np.ndarray, np.ndarray]:
         se3.check_rigid(H, "head", tolerance=1e-3)
     except FacesimError as exc:
         raise FacesimError(f"{table.path}: {exc}") from None
-    R = H[:, :3, :3]
-    loose = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2)) > se3.RIGID_TOLERANCE
+    loose = se3.rigidity_error(H) > se3.RIGID_TOLERANCE
     if loose.any():                # only those: a file of full-precision rotations reads back as written
-        U, _, Vt = np.linalg.svd(R[loose])
+        U, _, Vt = np.linalg.svd(H[loose, :3, :3])
         H[loose, :3, :3] = U @ Vt  # det +1: check_rigid refused reflections
     return frame_numbers(table), H
 

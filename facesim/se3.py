@@ -245,13 +245,14 @@ def fit_rotation(P, Q) -> np.ndarray:
 
 
 def rigid_fit(P, Q) -> np.ndarray:
-    """4x4 rigid transform taking points ``P (k, 3)`` closest to ``Q (k, 3)`` mm in least squares
-    (:func:`fit_rotation`, then the centroids); the identity if k = 0."""
+    """4x4 rigid transform(s) ``(..., 4, 4)`` taking points ``P (..., k, 3)`` closest to ``Q (..., k,
+    3)`` mm in least squares (broadcast against each other: one rest set onto a batch of frames;
+    :func:`fit_rotation`, then the centroids); the identity if k = 0."""
     P, Q = np.asarray(P, dtype=np.float64), np.asarray(Q, dtype=np.float64)
-    if len(P) == 0:
-        return np.eye(4)
+    if P.shape[-2] == 0:
+        return np.broadcast_to(np.eye(4), np.broadcast_shapes(P.shape[:-2], Q.shape[:-2]) + (4, 4)).copy()
     R = fit_rotation(P, Q)
-    return from_rt(R, Q.mean(axis=0) - R @ P.mean(axis=0))
+    return from_rt(R, Q.mean(axis=-2) - np.einsum("...ij,...j->...i", R, P.mean(axis=-2)))
 
 
 def similarity(source, target):

@@ -138,11 +138,7 @@ def rigid_poses(rest, points) -> np.ndarray:
     """Kabsch poses ``(N, 4, 4)`` taking ``rest (B, 3)`` mm closest to each frame of ``points
     (N, B, 3)`` mm in least squares (equal weights; a proper rotation, det +1, even where the
     points are planar or noisy enough for the unconstrained fit to reflect): the paper's 5.3."""
-    rest = np.asarray(rest, dtype=np.float64)
-    points = np.asarray(points, dtype=np.float64)
-    R = se3.fit_rotation(rest[None], points)
-    t = points.mean(axis=1) - np.einsum("nij,j->ni", R, rest.mean(axis=0))
-    return se3.from_rt(R, t)
+    return se3.rigid_fit(np.asarray(rest, dtype=np.float64)[None], points)
 
 
 def _rest_points(skin_rest: np.ndarray, bone_rest: np.ndarray) -> np.ndarray:
