@@ -453,6 +453,47 @@ class DynamicReport:
                            seconds={"total": self.seconds, "substeps": self.substeps})
 
 
+class _KnownTangent(NodeTerm):
+    """The flesh and muscle terms of one implicit step whose projected Hessian at the step's start
+    ``x_at`` is already assembled -- the damping tangent ``K0``, over every node of the simulated
+    tets. Newton's first Hessian is taken there: it reads ``K0``'s blocks on the system's pattern
+    (``blocks``: the ``K0`` block of each system block) instead of assembling the same element
+    Hessians a second time (a third of a two-iteration step's assembly). It is the projected
+    tangent even where Newton would have tried the true one: the first iteration of a step from the
+    predictor, the true tangent's advantage (quadratic convergence near the solution) comes later.
+    Everything else is the terms' own."""
+
+    def __init__(self, terms, x_at, K0_data, blocks):
+        self.terms, self.x_at, self.K0_data, self.blocks = tuple(terms), x_at, K0_data, blocks
+        self.reused = 0
+
+    def energy_and_gradient(self, x, a=None):
+        e, g = 0.0, np.zeros_like(x)
+        for t in self.terms:
+            et, gt = t.energy_and_gradient(x, a)
+            e += et
+            g += gt
+        return e, g
+
+    def hessian(self, x, a=None, project: bool = True):
+        return sum(t.hessian(x, a, project) for t in self.terms)
+
+    def add_hessian(self, x, a, system, data, project: bool = True) -> None:
+        if x is self.x_at or (x.shape == self.x_at.shape and np.array_equal(x, self.x_at)):
+            data += self.K0_data[self.blocks]
+            self.reused += 1
+            return
+        for t in self.terms:
+            t.add_hessian(x, a, system, data, project)
+
+    def sparse_hessian(self, x, a, system, project: bool = True):
+        parts = [H for t in self.terms if (H := t.sparse_hessian(x, a, system, project)) is not None]
+        return sum(parts[1:], parts[0]) if parts else None
+
+    def max_step(self, x, dx) -> float:
+        return float(min((t.max_step(x, dx) for t in self.terms), default=math.inf))
+
+
 # ------------------------------------------------------------------ the integrator
 class DynamicSimulator:
     """Implicit dynamics of one :class:`FaceModel` (see the module doc).
@@ -488,6 +529,13 @@ class DynamicSimulator:
                                                                                           elems, n)
         # every node of the simulated tets, bones included, for the damping tangent
         self.full = DofSystem(rest.tets, n, np.zeros((n, 3), bool), elems) if self.dynamics.beta > 0 else None
+        self._known = None   # the K0 block of each block of the simulator's system (_KnownTangent)
+        if self.full is not None:
+            sysm = self.sim.system
+            rows = np.repeat(np.arange(len(sysm.active)), np.diff(sysm.indptr))
+            blocks = _block_index(self.full, sysm.active[rows], sysm.active[sysm.indices])
+            if (blocks >= 0).all():   # always, for a system of the same tets (kept general: else assembled)
+                self._known = blocks
         m = self.model
         self._centres = (m.X[m.cranium_nodes].mean(axis=0) if len(m.cranium_nodes) else np.zeros(3),
                          m.X[m.jaw_nodes].mean(axis=0) if len(m.jaw_nodes) else np.zeros(3))
@@ -649,8 +697,12 @@ class DynamicSimulator:
         """One implicit step of ``h`` s to ``controls`` at ``frame``: minimise the incremental potential
         from the predictor; returns ``(state, SolveReport, method, damping tangent)``."""
         sim = self.sim
+        fresh = K0 is None
         terms, start, xbar, ch, method, K0 = self.step_terms(state, controls, h, K0)
-        prob = Problem(sim.terms + sim.solve_terms(controls, frame) + terms, sim.system, start, controls.a)
+        flesh = sim.terms
+        if fresh and K0 is not None and self._known is not None:   # K0 taken at start: Newton's first Hessian
+            flesh = (_KnownTangent(sim.terms, start, K0, self._known),)
+        prob = Problem(flesh + sim.solve_terms(controls, frame) + terms, sim.system, start, controls.a)
         # relative to the frame's load, or to the step's own imbalance at the predictor when larger
         # (a head shake under rest controls has no load: the cold start is an equilibrium)
         scale = max(load, float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1])))

@@ -359,3 +359,41 @@ def test_the_quasistatic_run_record_and_log_are_unchanged(box_model, tmp_path):
     assert (tmp_path / "frames.csv").read_text().splitlines()[0] == ",".join(FRAME_LOG_COLUMNS)
     with np.load(tmp_path / "state" / "frame_00001.npz") as z:
         assert set(z.files) == {"x", "a", "jaw", "frame", "converged", "error"}
+
+
+def test_newtons_first_hessian_is_the_damping_tangent(box_model, monkeypatch):
+    """Each step's first Newton Hessian reads the damping tangent's blocks (assembled at the same
+    point, over every node) instead of assembling the flesh again: the blocks on the system's
+    pattern are exactly the system's own assembly there, and a run with the sharing lands where
+    one without it does, within the Newton tolerance."""
+    import facesim.fem.dynamics as dynamics
+
+    dyn = simulator(box_model, rtol=1e-10)
+    c = _jaw_motion(0.25)
+    x = dyn.sim.equilibrium(c).x + 0.05 * np.random.default_rng(0).normal(size=box_model.X.shape)
+    own = dyn.sim.system.new_data()
+    for t in dyn.sim.terms:
+        t.add_hessian(x, c.a, dyn.sim.system, own, True)
+    assert np.abs(own).max() > 0
+    np.testing.assert_allclose(dyn.tangent(x, c.a)[dyn._known], own, rtol=1e-12, atol=1e-12 * np.abs(own).max())
+
+    used = []
+    real = dynamics._KnownTangent.add_hessian
+
+    def counting(self, *args, **kw):
+        before = self.reused
+        real(self, *args, **kw)
+        used.append(self.reused - before)
+    monkeypatch.setattr(dynamics._KnownTangent, "add_hessian", counting)
+
+    def run(share):
+        d = simulator(box_model, rtol=1e-10)
+        if not share:
+            d._known = None
+        d.start(_jaw_motion(0.0))
+        for k in range(1, 5):
+            assert d.step(_jaw_motion(0.05 * k), 0.05).converged
+        return d.state.x
+    shared = run(True)
+    assert used and sum(used) == 8 and len(used) > 8        # 4 frames x 2 steps: each step's first Hessian only
+    np.testing.assert_allclose(shared, run(False), atol=1e-7)
