@@ -76,3 +76,11 @@ def test_06_dynamics(tmp_path):
     assert np.abs(qs - qs[0]).max() < 0.05        # quasistatically the shaken face only turns (mm, head frame)
     assert r["gap_mm"] > 0.05                     # dynamically the soft nose lags
     assert (tmp_path / "nose_path.png").is_file()
+
+
+def test_07_teeth_tracking(tmp_path):
+    r = _load("07_teeth_tracking").main(["--out", str(tmp_path), "--size", "480x270", "--frames", "12", "--every", "2",
+                                         "--start", "48", "--iterations", "100"])
+    ok = ~r["flagged"]
+    assert ok.sum() >= 8 and r["mm"][ok].mean() < 1.0
+    assert r["rig"] is not None and (tmp_path / "teeth_tracking.png").is_file()
