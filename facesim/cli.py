@@ -21,6 +21,7 @@ from facesim.constants import CONTACT_STIFFNESS
 from facesim.errors import FacesimError, ModelFileError, SolverError
 from facesim.anim.cli import add_parsers as add_edit_commands
 from facesim.jaw.cli import add_jaw_commands
+from facesim.teeth.cli import add_teeth_commands
 
 RESOLUTIONS = ("test", "coarse", "medium", "paper")
 #: Environment variable naming the model ``facesim demo`` uses instead of the shipped one.
@@ -476,6 +477,26 @@ def cmd_export_cache(args) -> int:
     return 0
 
 
+def _jaw_prior(args, markers, spec):
+    """The :class:`~facesim.inverse.jaw_prior.JawPrior` of ``--jaw-prior`` (None without it), for a
+    model whose markers are ``markers`` (a FaceModel or a MarkerSet)."""
+    if args.jaw_prior is None:
+        return None
+    from facesim.inverse.jaw_prior import JawPrior
+    from facesim.jaw.markerless import load_predictor
+    from facesim.jaw.markerless_features import bone_rest_points
+
+    if spec.build().jaw_model.n_params == 0:
+        raise FacesimError(f"--jaw-prior: the jaw model {args.jaw_model!r} has no parameters to draw to the predicted "
+                           "jaw; use e.g. --jaw-model sliding-condyle")
+    pred = load_predictor(args.jaw_prior)
+    names = tuple(getattr(markers, "markers", markers).names)
+    try:
+        return JawPrior(pred, bone_rest_points(_load(args.model)), names, sigma=args.jaw_prior_sigma)
+    except FacesimError as exc:
+        raise FacesimError(f"{args.jaw_prior}: {exc}") from None
+
+
 def cmd_solve_mocap(args) -> int:
     from contextlib import nullcontext
 
@@ -535,7 +556,8 @@ def cmd_solve_mocap(args) -> int:
                                           max_seconds=_frame_seconds(args, model)), head=args.head,
                            robust=not args.no_robust, loss=args.loss, loss_scale=args.loss_scale,
                            chunk_size=args.chunk_size, head_smoothing=args.head_smoothing,
-                           write_meshes=args.write_meshes)
+                           write_meshes=args.write_meshes,
+                           jaw_prior=_jaw_prior(args, model if layout is None else layout.markers, spec))
     parallel = args.workers is not None or args.scheduler is not None
     if layout is not None and parallel:
         raise FacesimError("--workers/--scheduler: not yet supported with the capture's own marker layout; "
@@ -1060,6 +1082,13 @@ def build_parser() -> argparse.ArgumentParser:
                        help="with the capture's own layout, fit a uniform scale in the registration too")
     solve.add_argument("--noise", type=_positive(50.0), default=0.5,
                        help="marker noise level, mm (default: %(default)s)")
+    solve.add_argument("--jaw-prior", metavar="PRED.npz",
+                       help="a markerless jaw predictor trained on this model's markers ('facesim jaw markerless "
+                            "train --features markers'): each frame's predicted jaw starts cold frames and is a prior "
+                            "of the solved jaw parameters (for captures with few markers on the chin)")
+    solve.add_argument("--jaw-prior-sigma", type=_positive(100.0, "a distance"), default=1.0, metavar="MM",
+                       help="the prior's standard deviation per predicted mandible point coordinate, mm (default: "
+                            "%(default)s; against the markers' --noise)")
     solve.add_argument("--max-steps", type=_count(1, 1000), default=5,
                        help="Gauss-Newton steps per frame (default: %(default)s)")
     solve.add_argument("--no-robust", action="store_true",
@@ -1113,6 +1142,7 @@ def build_parser() -> argparse.ArgumentParser:
     from facesim.markerless_cli import add_markerless_commands
 
     add_jaw_commands(commands, more=(add_markerless_commands,))
+    add_teeth_commands(commands)
     return parser
 
 

@@ -442,7 +442,7 @@ def plot_recovery(truth: dict, out_dir) -> Path:
 
 # ------------------------------------------------------------------ the demo
 def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = False, progress: bool = True,
-             say=print) -> dict:
+             say=print, jaw_prior=None, drop=()) -> dict:
     """Solve the demo clip on ``model`` and score the solve against the clip's truth.
 
     Parameters
@@ -454,6 +454,9 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
         its truth is ``<stem>_truth.npz`` beside it.
     frames : ``"FIRST:LAST"`` (inclusive) to solve part of the clip.
     say : where the one-line messages go (None: nowhere).
+    jaw_prior : a :class:`~facesim.inverse.jaw_prior.JawPrior` for the model (``solve-mocap
+        --jaw-prior``), or None.
+    drop : names of markers taken out of the clip (a capture with fewer markers, e.g. none on the chin).
 
     Returns ``{"score": score_solve(...), "track": track summary, "outputs": [...], "seconds": s}``.
     """
@@ -483,6 +486,10 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
                            "procedural head ('facesim model build')")
     P = np.full((len(data.frames), model.n_markers, 3), np.nan)
     P[:, index >= 0] = data.P[:, index[index >= 0]]
+    unknown = [n for n in drop if n not in model.markers.names]
+    if unknown:
+        raise FacesimError(f"drop: no marker {', '.join(unknown)} in the model")
+    P[:, [model.markers.names.index(n) for n in drop]] = np.nan
     # stabilise the whole clip once, the head transforms smoothed over time (the same whichever
     # frames are solved); the solve then takes the clip as stabilised
     P_all, _ = stabilise(model, P, HEAD_SMOOTHING)
@@ -492,7 +499,7 @@ def run_demo(out_dir, model=None, clip=None, *, frames=None, render: bool = Fals
     say(f"clip {clip.name}: {len(data.frames)} frames at {data.rate or truth['fps']:g} Hz, {len(data.names)} markers, "
         f"made on a {fine['n_tets']:,}-tet face; solving {len(frame_numbers)} frames on a {model.n_tets:,}-tet face")
     sim = FaceSimulator(model, jaw_model=SlidingCondyleJaw(model.jaw))
-    options = TrackOptions(fit=FitOptions(noise=float(truth["noise"])), head="none")
+    options = TrackOptions(fit=FitOptions(noise=float(truth["noise"])), head="none", jaw_prior=jaw_prior)
     # bind the markers to the skin on the neutral frames the clip starts with (Sifakis 2005): the
     # clip was made on another mesh, where the same landmark can sit millimetres away
     hold = neutral_frames(len(data.frames))

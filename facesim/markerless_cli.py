@@ -86,17 +86,41 @@ def cmd_train(args) -> int:
     from facesim.jaw.markerless import save_predictor, train
 
     data = [_posed(p, "training") for p in args.data]
+    if args.markers is not None and args.features != "markers":
+        raise FacesimError("--markers: only with --features markers")
+    if args.features == "markers":
+        names = _marker_names(args.markers, data[0])
+        data = [_in(p, lambda d=d: d.marker_features(names)) for p, d in zip(args.data, data)]
     n = data[0].n_features
     for p, d in zip(args.data, data):
         if d.n_features != n:
-            raise FacesimError(f"{p}: {d.n_features} skin features, but {args.data[0]} has {n}; expected datasets of "
-                               "the same feature layout")
+            raise FacesimError(f"{p}: {d.n_features} {args.features} features, but {args.data[0]} has {n}; expected "
+                               "datasets of the same feature layout")
     pred = train(data, cv_folds=args.cv_folds)
     save_predictor(pred, args.output, single=args.float32)
     hp = pred.meta.get("hyper", {})
     print(f"trained on {len(data)} subject(s), {sum(int(d.ok.sum()) for d in data)} frames "
           f"({', '.join(f'{k}={v:g}' for k, v in hp.items() if isinstance(v, (int, float)))}) -> {args.output}")
     return 0
+
+
+def _marker_names(spec, data):
+    """The markers of ``train --markers``: None (all the dataset recorded), comma-separated names,
+    or a capture file (.c3d, .trc) whose markers the dataset has, in the dataset's order."""
+    if spec is None:
+        return None
+    path = Path(spec)
+    if path.suffix.lower() in (".c3d", ".trc") or path.is_file():
+        from facesim.mocap.io import read_markers
+
+        have = set(read_markers(path).names)
+        recorded = data.markers.names if data.markers is not None else ()
+        names = [n for n in recorded if n in have]
+        if len(names) < 3:
+            raise FacesimError(f"{path}: {len(names)} of its {len(have)} markers are among the dataset's "
+                               f"{len(recorded)}; expected a capture of the model's marker names")
+        return names
+    return [n.strip() for n in spec.split(",") if n.strip()]
 
 
 def cmd_retarget(args) -> int:
@@ -265,6 +289,12 @@ def add_markerless_commands(jaw_sub, at_least) -> None:
                                     "multi-subject mapping, each subject aligned to the first by one rigid "
                                     "transform.")
     tr.add_argument("--data", required=True, nargs="+", metavar="D.npz", help="dataset(s); the first is the primary")
+    tr.add_argument("--features", choices=("skin", "markers"), default="skin",
+                    help="what the predictor reads: the skin feature points (Zoss et al.; default), or the model's "
+                         "markers, for 'solve-mocap --jaw-prior' on a marker capture of that layout")
+    tr.add_argument("--markers", metavar="NAMES|CAPTURE",
+                    help="with --features markers: only these markers (comma-separated), or those a capture file "
+                         "(.c3d, .trc) has -- a predictor for captures with fewer markers (default: all)")
     tr.add_argument("--cv-folds", type=at_least(2, int), default=3, help="cross-validation folds (default: 3)")
     tr.add_argument("--float32", action="store_true",
                     help="store the support vectors in single precision (half the file; the shipped predictor)")

@@ -64,7 +64,7 @@ import numpy as np
 
 from facesim._files import atomic_write
 from facesim.errors import FacesimError, SolverError
-from facesim.jaw.markerless_data import MarkerlessData, load_data
+from facesim.jaw.markerless_data import MarkerlessData, MarkerTrack, load_data
 from facesim.jaw.markerless_features import LAYOUT_VERSION, FeatureLayout, feature_layout, skin_features
 
 #: Frames of a generated dataset when ``frames`` is not given (the paper: 2000 train, 1539 test).
@@ -286,7 +286,8 @@ def _solve_frame(sim, layout: FeatureLayout, newton, target, k: int, i: int, sta
     m = sim.model
     jaw = m.X[m.jaw_nodes] @ np.asarray(pose)[:3, :3].T + np.asarray(pose)[:3, 3]
     inverted, min_J = sim.element_quality(x)
-    row = {"i": int(i), "skin": skin_features(layout, x), "ok": bool(ok), "iterations": int(iterations),
+    row = {"i": int(i), "skin": skin_features(layout, x), "markers": m.marker_positions(x), "ok": bool(ok),
+           "iterations": int(iterations),
            "seconds": time.perf_counter() - t0, "stop_reason": str(stop), "error": error,
            "inverted": int(inverted), "min_J": float(min_J),
            "jaw_error": float(np.abs(x[m.jaw_nodes] - jaw).max(initial=0.0))}
@@ -324,8 +325,8 @@ def _read_row(root: Path, i: int, P: int) -> dict | None:
             row = {k: z[k][()] if z[k].ndim == 0 else np.array(z[k]) for k in z.files}
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
         return None
-    if np.shape(row.get("skin")) != (P, 3):
-        return None
+    if np.shape(row.get("skin")) != (P, 3) or np.ndim(row.get("markers")) != 2:
+        return None   # unreadable, or written before frames recorded the markers: solved again
     row["i"] = i
     return row
 
@@ -545,10 +546,14 @@ def _assemble(model, model_path, layout: FeatureLayout, poses, A, rows: dict, in
             "frames_with_inverted_tets": int((inverted > 0).sum()),
             "jaw_node_error_mm": float(max(float(rows[i]["jaw_error"]) for i in range(n))),
             "seconds_per_frame": round(float(seconds.mean()), 3), "iterations_per_frame": round(float(iterations.mean()), 2)}
+    markers = np.stack([np.asarray(rows[i]["markers"], dtype=np.float64) for i in range(n)])
     return MarkerlessData(skin=skin, skin_rest=np.array(layout.skin_rest), bone_rest=np.array(layout.bone_rest),
                           poses=np.array(poses), ok=ok, feature_tri=np.array(layout.triangle),
                           feature_bary=np.array(layout.bary), activations=np.array(A),
-                          muscles=tuple(model.muscles.names), meta=meta)
+                          muscles=tuple(model.muscles.names), meta=meta,
+                          markers=MarkerTrack(markers, model.marker_positions(), tuple(model.markers.names),
+                                              np.array(model.markers.triangle, dtype=np.int64),
+                                              np.array(model.markers.bary)))
 
 
 __all__ = ["DEFAULT_FRAMES", "HELDOUT_SUBJECT", "SUBJECTS", "TRAINING_SUBJECTS", "build_dataset", "jaw_poses",

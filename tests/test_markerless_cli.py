@@ -152,3 +152,31 @@ def test_shipped_predictor_is_the_default(files, capsys):
     assert run("eval", "--data", tmp / "T.npz", "--json") == 0
     r = json.loads(capsys.readouterr().out)
     assert r["predictor"]["mean_mm"] < r["baseline"]["mean_mm"] / 3
+
+
+def test_marker_predictor_and_the_jaw_prior_in_solve_mocap(files, tmp_path, capsys):
+    """train --features markers reads the model's markers the dataset recorded; solve-mocap
+    --jaw-prior runs with it on a capture of the model's layout (the frames written, the prior in
+    run.json), and refuses a skin-feature predictor in one line."""
+    tmp, run = files
+    d = load_data(tmp / "D.npz")
+    assert d.markers is not None and d.markers.positions.shape == (d.n_frames, 81, 3)
+    assert run("train", "--data", tmp / "D.npz", "--features", "markers", "-o", tmp_path / "PM.npz") == 0
+    capsys.readouterr()
+    assert run("eval", "--predictor", tmp_path / "PM.npz", "--data", tmp / "T.npz", "--json") == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["frames"] == 6 and r["predictor"]["mean_mm"] < 2.0
+    out = tmp_path / "solve"
+    capture = MESHES / "demo_clip.c3d"
+    code = main(["solve-mocap", "--model", str(MODEL), "--markers", str(capture), "--frames", "0:1",
+                 "--jaw-prior", str(tmp_path / "PM.npz"), "--jaw-prior-sigma", "0.5", "-o", str(out), "-q"])
+    assert code == 0
+    lines = (out / "jaw.csv").read_text().splitlines()
+    assert lines[0].startswith("frame,opening") and len(lines) == 3
+    record = json.loads((out / "run.json").read_text())
+    assert "jaw_prior" in json.dumps(record)
+    capsys.readouterr()
+    code = main(["solve-mocap", "--model", str(MODEL), "--markers", str(capture), "--frames", "0:1",
+                 "--jaw-prior", str(tmp / "P.npz"), "-o", str(tmp_path / "bad"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "reads skin features" in err[0] and "P.npz" in err[0]

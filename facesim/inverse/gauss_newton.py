@@ -282,7 +282,7 @@ def _reusable(J: EquilibriumJacobian | None, space: ControlSpace, c, x) -> bool:
 def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
               options: FitOptions | None = None, weights=None, extra_terms=(),
               jacobian: EquilibriumJacobian | None = None, screen=None, frame: float = 0.0,
-              head_frame=None) -> Fit:
+              head_frame=None, jaw_prior=None) -> Fit:
     """Fit one frame: the controls (in ``space``, default all activations and the jaw model's
     parameters) whose equilibrium puts the model's markers on ``targets (r, 3)`` mm (NaN rows
     are missing markers), starting from ``controls`` and its equilibrium ``x0`` (solved if None).
@@ -301,6 +301,9 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     the rigidity penalty (:mod:`facesim.inverse.head_frame`); the targets are in the capture's
     frame, the equilibrium in the head frame, and ``Fit.head_frame`` / ``Fit.markers`` are the
     solved frame and the markers it puts in the capture's frame.
+    ``jaw_prior``: a :class:`~facesim.inverse.jaw_prior.PriorRows`, predicted mandible points the
+    jaw parameters are drawn to (residual rows of the objective beside the markers'; needs jaw
+    parameters in ``space``; :mod:`facesim.inverse.jaw_prior`).
 
     Returns a :class:`Fit` with the final controls, positions, marker positions, the report (with
     ``stop_reason``, one of :data:`STOP_REASONS`: ``"converged"`` by the stopping rule,
@@ -311,7 +314,7 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     options = options or FitOptions()
     with single_blas_thread(), time_budget(options.max_seconds):   # vector-sized BLAS work: threads contend
         return _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
-                          jacobian, screen, frame, head_frame)
+                          jacobian, screen, frame, head_frame, jaw_prior)
 
 
 class _OutOfTime(Exception):
@@ -319,7 +322,7 @@ class _OutOfTime(Exception):
 
 
 def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian, screen, frame,
-               head_frame) -> Fit:
+               head_frame, jaw_prior=None) -> Fit:
     t0 = time.perf_counter()
     model = sim.model
     targets = np.asarray(targets, dtype=np.float64)
@@ -333,6 +336,10 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     nc = space.size
     head = None if head_frame is None else HeadFrame.of(model)
     bounds = _Bounds(space, sim.jaw_model, head)
+    if jaw_prior is not None and not space.n_jaw:
+        raise FacesimError("jaw prior: the control space solves no jaw parameters (a jaw model with parameters, "
+                           "e.g. sliding-condyle, and jaw=True)")
+    sj = space.slices()[1]
     rep = FitReport()
     clock = rep.timing
 
@@ -399,9 +406,15 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     def ctrl(c) -> Controls:
         return space.apply(base, c[:nc])
 
+    def prior(c) -> float:
+        if jaw_prior is None:
+            return 0.0
+        rp = jaw_prior.residual(sim.jaw_model, c[sj])
+        return 0.5 * jaw_prior.weight * float(rp @ rp)
+
     def objective(c, x, mu):
         r = (markers(x, c)[keep] - targets[keep]).ravel()
-        return 0.5 * float(r @ (w3 * r)) + mu * bounds.value_grad_hess(c)[0]
+        return 0.5 * float(r @ (w3 * r)) + prior(c) + mu * bounds.value_grad_hess(c)[0]
 
     def exact_jacobian(c, x):
         if expired():
@@ -419,12 +432,18 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         t = time.perf_counter()
         r = (markers(x, c)[keep] - targets[keep]).ravel()
         Jr = marker_jacobian(J, x, c)[rows]
-        dc, mu, nested = schedule_penalty(r, Jr, c, bounds, options, w3)
+        wr = w3
+        if jaw_prior is not None:   # the predicted bone points: rows of their own beside the markers'
+            Jp = np.zeros((3 * len(jaw_prior.rest), len(c)))
+            Jp[:, sj] = jaw_prior.jacobian(sim.jaw_model, c[sj])
+            r, Jr = np.r_[r, jaw_prior.residual(sim.jaw_model, c[sj])], np.vstack([Jr, Jp])
+            wr = np.r_[w3, np.full(len(Jp), jaw_prior.weight)]
+        dc, mu, nested = schedule_penalty(r, Jr, c, bounds, options, wr)
         rep.schedule_steps += nested
         F = objective(c, x, mu)
         m = r + Jr @ dc
-        predicted = F - (0.5 * float(m @ (w3 * m)) + mu * bounds.value_grad_hess(c + dc)[0])
-        slope = float((Jr.T @ (w3 * r) + mu * bounds.value_grad_hess(c)[1]) @ dc)   # d/dalpha F(c + alpha dc), 0
+        predicted = F - (0.5 * float(m @ (wr * m)) + mu * bounds.value_grad_hess(c + dc)[0])
+        slope = float((Jr.T @ (wr * r) + mu * bounds.value_grad_hess(c)[1]) @ dc)   # d/dalpha F(c + alpha dc), 0
         clock["algebra"] += time.perf_counter() - t
         return dc, mu, F, predicted, slope
 

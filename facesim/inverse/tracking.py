@@ -125,7 +125,9 @@ class TrackOptions:
     frames per independently (cold-) started chunk (None: one chunk, or with a cluster the frames
     divided evenly among its workers); head_smoothing : with ``"procrustes"``, smooth the head
     transforms over this many frames (odd, >= 3; 0: off; see :func:`facesim.mocap.stabilise.stabilise`);
-    write_meshes : also write each frame's skin and state as ``simulate`` does (the module doc)."""
+    write_meshes : also write each frame's skin and state as ``simulate`` does (the module doc);
+    jaw_prior : a :class:`~facesim.inverse.jaw_prior.JawPrior`: each frame's jaw predicted from its
+    markers starts a cold frame and is a prior of every frame's jaw parameters (None: none)."""
 
     fit: FitOptions = FitOptions()
     head: str = "procrustes"
@@ -138,6 +140,7 @@ class TrackOptions:
     chunk_size: int | None = None
     head_smoothing: int = 0
     write_meshes: bool = False
+    jaw_prior: object = None
 
     def __post_init__(self):
         if self.head not in HEAD_MODES:
@@ -188,8 +191,10 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
     return _fit_markers(sim, targets, controls, x0, space, options or TrackOptions(), jacobian, frame, head_frame)
 
 
-def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame, head_frame=None):
-    """:func:`fit_markers` (the module doc)."""
+def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame, head_frame=None,
+                 prior=None):
+    """:func:`fit_markers` (the module doc); ``prior``: the frame's jaw prior rows
+    (:class:`~facesim.inverse.jaw_prior.PriorRows`) or None."""
     fits: list[Fit] = []
     targets = np.asarray(targets, dtype=np.float64)
     # a tracked frame (one with the previous frame's Jacobian) screens for outliers on the first
@@ -199,7 +204,7 @@ def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacob
 
     def fit_from(target, c, x, J, weights=None, screen=None, head=None):
         fit = fit_frame(sim, target, c, x, space, options.fit, weights=weights, jacobian=J, screen=screen,
-                        frame=frame, head_frame=fits[-1].head_frame if fits else head)
+                        frame=frame, head_frame=fits[-1].head_frame if fits else head, jaw_prior=prior)
         fits.append(fit)
         return fit
 
@@ -290,8 +295,11 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     head = None
     if options.head == "solve":   # from the previous frame's head frame, or one found from this frame's markers
         head = start.head_frame if start.head_frame is not None else initial_head_frame(model, target)
+    prior = None
+    if options.jaw_prior is not None:
+        controls, x, jacobian, prior = _with_prior(sim, space, options, target, head, controls, x, jacobian)
     try:
-        fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k, head)
+        fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k, head, prior)
     except SolverError as exc:
         attached = sim.attached_positions(controls, x)
         P = model.marker_positions(attached)
@@ -331,6 +339,23 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
         return solved, start
     J = fit.jacobian
     return solved, _Start(fit.controls, fit.x, J, fit.head_frame)
+
+
+def _with_prior(sim, space, options: TrackOptions, target, head, controls, x, jacobian):
+    """The frame's jaw prior rows from its markers (in the skull frame: undone by ``head`` when the
+    head frame is solved), and its start: a cold frame (``x`` None) starts at the predicted jaw.
+    Returns ``(controls, x, jacobian, rows)``."""
+    model, jp = sim.model, options.jaw_prior
+    m = np.asarray(target, dtype=np.float64)
+    if head is not None:
+        A = np.asarray(head, dtype=np.float64)
+        m = (m - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
+    fallback = None if x is None else model.marker_positions(x)
+    points = jp.predict(model, m, fallback)
+    if x is None and space.n_jaw:
+        q = jp.start(sim.jaw_model, points)
+        controls = dataclasses.replace(controls, jaw=q)
+    return controls, x, jacobian, jp.rows(points, options.fit.noise)
 
 
 def initial_head_frame(model, target) -> np.ndarray:

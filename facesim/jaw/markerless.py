@@ -58,6 +58,8 @@ DEFAULT_GRID = {"C": (1.0, 10.0, 100.0), "epsilon": (0.01, 0.03), "gamma": (0.1,
 #: Rows of inputs per block of the kernel matrix in :meth:`Predictor.regress` (memory: rows x
 #: support vectors doubles).
 _BLOCK = 512
+#: Floor of the input scale of marker features, mm (see :func:`train`).
+MARKER_SCALE_MM = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,10 +164,39 @@ def _check_layout(pred: Predictor, n_features: int, n_bone: int | None = None) -
         raise FacesimError(f"predictor predicts {pred.n_bone} bone points, data has {n_bone}")
 
 
+def feature_kind(meta: dict) -> tuple[str, tuple[str, ...]]:
+    """``("skin", ())`` or ``("markers", names)``: what the feature points of a dataset's or a
+    predictor's ``meta`` are (:meth:`MarkerlessData.marker_features`)."""
+    f = meta.get("features") or {}
+    if f.get("kind") == "markers":
+        return "markers", tuple(str(n) for n in f.get("names", ()))
+    return "skin", ()
+
+
+def features_for(pred: Predictor, data: MarkerlessData) -> MarkerlessData:
+    """``data`` with the feature points ``pred`` reads: its skin features, or its markers for a
+    predictor trained on markers (their names must match the predictor's, in order)."""
+    kind, names = feature_kind(pred.meta)
+    have, have_names = feature_kind(data.meta)
+    if kind == have:
+        out = data
+    elif kind == "markers":
+        out = data.marker_features()
+        have_names = feature_kind(out.meta)[1]
+    else:
+        raise FacesimError("the predictor reads skin features, the data holds markers")
+    if kind == "markers" and have_names != names:
+        missing = [n for n in names if n not in have_names]
+        raise FacesimError(f"the predictor reads the markers {', '.join(names[:4])}, ... ({len(names)}); the data has "
+                           + (f"no {', '.join(missing[:5])}" if missing else "them in another order"))
+    return out
+
+
 def _subject_frame(pred: Predictor, data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(displacements (N, P, 3), bone_rest (B, 3), R_g (3, 3)) of ``data``: a MarkerlessData or
     bare skin positions (N, P, 3) of the predictor's own subject."""
     if isinstance(data, MarkerlessData):
+        data = features_for(pred, data)
         _check_layout(pred, data.n_features, len(data.bone_rest))
         R = alignment(data.skin_rest, data.bone_rest, pred.source_skin_rest, pred.source_bone_rest)
         return data.skin_displacement, data.bone_rest, R
@@ -227,7 +258,7 @@ def evaluate(pred: Predictor, data: MarkerlessData) -> dict:
     if data.poses is None:
         raise FacesimError("data has no jaw poses (field 'poses'): evaluation needs the true jaw")
     keep = np.flatnonzero(data.ok)
-    sub = data.subset(keep)
+    sub = features_for(pred, data).subset(keep)
     e_pred = pose_error(predict_poses(pred, sub), sub.poses, sub.bone_rest) if len(keep) else np.zeros(0)
     e_base = pose_error(baseline_poses(sub), sub.poses, sub.bone_rest) if len(keep) else np.zeros(0)
     return {"predictor": _summary(e_pred), "baseline": _summary(e_base), "frames": int(len(keep)),
@@ -248,8 +279,9 @@ def _training_set(data: MarkerlessData, R: np.ndarray, what: str) -> tuple[np.nd
     return X, Y
 
 
-def _scaler(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _scaler(A: np.ndarray, floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     mean, scale = A.mean(axis=0), A.std(axis=0)
+    scale = np.maximum(scale, floor)
     return mean, np.where(scale > 1e-12 * max(float(scale.max()), 1.0), scale, 1.0)
 
 
@@ -324,8 +356,13 @@ def train(datasets, *, cv_folds: int = 3, grid: dict | None = None, cv_frames: i
     if cv_folds < 2:
         raise FacesimError(f"cv_folds: expected at least 2, got {cv_folds}")
     Xs, Ys, subjects = [], [], []
+    kind = feature_kind(primary.meta)
     for i, d in enumerate(datasets):
         name = str(d.meta.get("subject", f"subject {i}"))
+        if feature_kind(d.meta) != kind:
+            raise FacesimError(f"{name}: its features are {feature_kind(d.meta)[0]} "
+                               f"({len(feature_kind(d.meta)[1])} markers), the primary subject's {kind[0]} "
+                               f"({len(kind[1])} markers); expected the same feature points")
         if d.n_features != primary.n_features or d.bone_rest.shape != primary.bone_rest.shape:
             raise FacesimError(f"{name}: {d.n_features} skin and {len(d.bone_rest)} bone points, the primary subject "
                                f"has {primary.n_features} and {len(primary.bone_rest)}")
@@ -338,7 +375,15 @@ def train(datasets, *, cv_folds: int = 3, grid: dict | None = None, cv_frames: i
     X, Y = np.concatenate(Xs), np.concatenate(Ys)
     if len(X) < 2 * cv_folds:
         raise FacesimError(f"train: {len(X)} usable frames (ok, with poses), expected at least {2 * cv_folds}")
-    x_mean, x_scale = _scaler(X)
+    # Marker features include markers that hardly move with the jaw (forehead, temples): scaled by
+    # their own spread (hundredths of a mm) a capture's noise or a marker placed a millimetre off
+    # would be hundreds of standard deviations and blank the RBF kernel. Their scale is floored at
+    # MARKER_SCALE_MM, so the kernel measures the markers' motion in millimetres wherever they move
+    # less than that. Measured (benchmarks/RESULTS.md, issue 17): held-out frames of the coarse face
+    # 0.25 mm with a 0.5 mm floor, 0.23 with 2 mm, 0.20 with 4 mm; the demo clip (made on the medium
+    # face: another mesh, 0.5 mm noise) 1.85, 1.48 and 1.35 mm. The skin features all move with the
+    # jaw (the chin and jaw mask) and are scaled as the paper has them.
+    x_mean, x_scale = _scaler(X, MARKER_SCALE_MM if kind[0] == "markers" else 0.0)
     y_mean, y_scale = _scaler(Y)
     Z, V = (X - x_mean) / x_scale, (Y - y_mean) / y_scale
 
@@ -361,7 +406,8 @@ def train(datasets, *, cv_folds: int = 3, grid: dict | None = None, cv_frames: i
     used, dual, intercept = _pack(svrs, len(Z))
     meta = {"hyper": {"C": best["C"], "epsilon": best["epsilon"], "gamma": gamma, "gamma_units": best["gamma"],
                       "cv_mm": best["cv_mm"], "cv_folds": cv_folds, "cv_frames": int(len(rows)), "grid": scores},
-            "subjects": subjects, "frames": int(len(X)), "support_vectors": int(len(used))}
+            "subjects": subjects, "frames": int(len(X)), "support_vectors": int(len(used)),
+            "features": {"kind": kind[0], "names": list(kind[1])}}
     return Predictor(Z[used], dual, intercept, gamma, x_mean, x_scale, y_mean, y_scale,
                      primary.skin_rest.copy(), primary.bone_rest.copy(), primary.skin_rest.copy(),
                      primary.bone_rest.copy(), np.broadcast_to(np.eye(3), (primary.n_features, 3, 3)).copy(), meta)
@@ -524,6 +570,7 @@ def retarget(pred: Predictor, calibration: MarkerlessData, *, smoothness: float 
 
     if calibration.poses is None:
         raise FacesimError("calibration: no jaw poses (field 'poses'): retargeting needs them")
+    calibration = features_for(pred, calibration)
     _check_layout(pred, calibration.n_features, len(calibration.bone_rest))
     cal = calibration.subset(np.flatnonzero(calibration.ok))
     F, P = cal.n_frames, cal.n_features
@@ -611,6 +658,7 @@ __all__ = [
     "alignment",
     "baseline_poses", "calibration_frames",
     "evaluate",
+    "feature_kind", "features_for",
     "load_predictor",
     "pose_error",
     "predict_bone_points",

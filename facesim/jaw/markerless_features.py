@@ -344,6 +344,12 @@ def feature_layout(model, n_skin: int = 240) -> FeatureLayout:
                          n_skin_vertices=int(len(skin_nodes)), chart=desc)
 
 
+def bone_rest_points(model) -> np.ndarray:
+    """``(B, 3)`` the bone feature points (:data:`BONE_FEATURES`) of ``model``'s mandible at rest,
+    skull frame, mm: those of :func:`feature_layout`, without finding the skin features."""
+    return MandibleChart.of(model).points(np.array([[s, h] for _, s, h in BONE_FEATURES]))[0]
+
+
 def _skin_points(X, skin, P, N):
     """Where the rays ``P + t N`` (``(k, 3)`` each) leave the flesh through the outer skin (module
     docstring): triangle ``(k,)``, barycentric ``(k, 3)``, point ``(k, 3)``, depth ``(k,)`` mm and
@@ -429,5 +435,6 @@ def skin_features(layout: FeatureLayout, x, head=None) -> np.ndarray:
     return p
 
 
-__all__ = ["BONE_FEATURES", "LAYOUT_VERSION", "FeatureLayout", "MandibleChart", "feature_layout", "h_top",
+__all__ = ["BONE_FEATURES", "LAYOUT_VERSION", "FeatureLayout", "MandibleChart", "bone_rest_points", "feature_layout",
+           "h_top",
            "mirror_index", "points_on_surface", "skin_features", "skin_grid"]
