@@ -17,6 +17,7 @@ from pathlib import Path
 
 import facesim
 from facesim._files import MESHES, require_suffix
+from facesim import _argtypes as argtypes
 from facesim.constants import CONTACT_STIFFNESS
 from facesim.errors import FacesimError, ModelFileError, SolverError
 from facesim.anim.cli import add_parsers as add_edit_commands
@@ -61,30 +62,8 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _positive(maximum: float, what: str = "a number"):
-    """argparse type: a finite number > 0 and <= ``maximum``."""
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            v = float("nan")
-        if not (0.0 < v <= maximum):   # NaN fails too
-            raise argparse.ArgumentTypeError(f"expected {what} > 0 and <= {maximum:g}, got {text!r}")
-        return v
-    return parse
-
-
-def _count(minimum: int, maximum: int):
-    """argparse type: an integer in [minimum, maximum]."""
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            v = None
-        if v is None or not minimum <= v <= maximum:
-            raise argparse.ArgumentTypeError(f"expected an integer from {minimum} to {maximum}, got {text!r}")
-        return v
-    return parse
+_positive = argtypes.positive   # argparse types: a number > 0 and <= a maximum, an integer in a range
+_count = argtypes.integer
 
 
 def _span(text: str) -> str:

@@ -22,6 +22,7 @@ import re
 import sys
 from pathlib import Path
 
+from facesim._argtypes import number, whole
 from facesim.anim.curves import METHODS
 from facesim.errors import FacesimError, ModelFileError
 
@@ -39,18 +40,8 @@ SOURCES_EPILOG = (
 
 
 # ------------------------------------------------------------------ argparse types
-def _number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-
-
-def _whole(text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+_number = number()   # argparse types: any finite number, any integer
+_whole = whole()
 
 
 def _weight(text: str):

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from facesim import se3
+from facesim._argtypes import at_least
 from facesim._files import atomic_write, open_npz, require_suffix
 from facesim.errors import FacesimError, ModelFileError
 
@@ -371,20 +372,7 @@ def cmd_jaw_fit_model(args) -> int:
 MAX_NOISE_MM = 10.0
 
 
-def _at_least(minimum, kind=float, maximum=None):
-    """argparse type: a finite ``kind`` (float or int) >= ``minimum`` (and <= ``maximum``)."""
-    what = "an integer" if kind is int else "a number"
-    upper = "" if maximum is None else f" and <= {maximum:g}"
-
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except (ValueError, OverflowError):
-            v = None
-        if v is None or not np.isfinite(v) or v < minimum or (maximum is not None and v > maximum):
-            raise argparse.ArgumentTypeError(f"expected {what} >= {minimum:g}{upper}, got {text!r}")
-        return v
-    return parse
+_at_least = at_least   # argparse type: a finite number (or integer) >= a minimum (and <= a maximum)
 
 
 def add_jaw_commands(subparsers, more=()) -> argparse.ArgumentParser:
