@@ -13,31 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from facesim._argtypes import in_range, integer
 from facesim.errors import FacesimError
 
 
-def _number(minimum: float, maximum: float, what: str = "a number"):
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            v = float("nan")
-        if not minimum <= v <= maximum:
-            raise argparse.ArgumentTypeError(f"expected {what} from {minimum:g} to {maximum:g}, got {text!r}")
-        return v
-    return parse
-
-
-def _integer(minimum: int, maximum: int):
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            v = None
-        if v is None or not minimum <= v <= maximum:
-            raise argparse.ArgumentTypeError(f"expected an integer from {minimum} to {maximum}, got {text!r}")
-        return v
-    return parse
+_number = in_range   # argparse types: a number in a range, an integer in a range
+_integer = integer
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -146,10 +127,18 @@ def cmd_teeth_track(args) -> int:
     dentition = _dentition(args)
     options = TrackOptions(track_head=not args.still_head, min_confidence=args.min_confidence,
                            max_sigma_mm=args.max_sigma)
-    info = track_capture(capture, dentition, out, options, resume=args.resume, progress=not args.quiet)
+    first = None
+    if args.start != "rest":
+        from facesim.jaw.cli import read_poses
+
+        if not Path(args.start).is_file():
+            raise FacesimError(f"--start {args.start}: no such file (expected 'rest' or a poses file .npz)")
+        first = read_poses(args.start).poses[0]
+    info = track_capture(capture, dentition, out, options, resume=args.resume, progress=not args.quiet, first=first)
     heads = f", {info['head_flagged']} with the head held too" if info["head_flagged"] else ""
     print(f"tracked {info['frames']} frames ({info['resumed']} resumed) in {len(cameras)} cameras, "
-          f"{info['seconds_per_frame']:.2f} s a frame; {info['flagged']} flagged (jaw held{heads}) -> {out} "
+          f"{info['seconds_per_frame']:.2f} s a frame; {info['restarted']} re-fitted from other starts; "
+          f"{info['flagged']} flagged (jaw held{heads}) -> {out} "
           f"(log {log_path(out).name})")
     return 0
 
@@ -232,10 +221,13 @@ def add_teeth_commands(subparsers) -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, metavar="P.npz", help="poses file to write")
     _teeth_inputs(t)
     t.add_argument("--still-head", action="store_true", help="the head does not move (upper teeth at rest)")
-    t.add_argument("--min-confidence", type=_number(0, 1), default=0.1,
-                   help="flag a jaw whose matched contour share is below this (default: %(default)s)")
+    t.add_argument("--min-confidence", type=_number(0, 1), default=0.5,
+                   help="flag a jaw whose share of the visible model contour that matches the images is below "
+                        "this (default: %(default)s)")
     t.add_argument("--max-sigma", type=_number(0, 100, "mm"), default=0.15,
                    help="flag a jaw whose incisal point's formal std exceeds this, mm (default: %(default)s)")
+    t.add_argument("--start", default="rest", metavar="rest|P.npz",
+                   help="the first frame's jaw start: rest, or the first pose of a poses file (default: rest)")
     t.add_argument("--resume", action="store_true", help="keep the frames of an earlier run's P.frames.csv")
     t.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_teeth_track)

@@ -3,7 +3,9 @@
 Teeth are bright and nearly grey; lips and skin are saturated red; the mouth behind the teeth is
 dark. :func:`segment` labels every pixel (a ``(h, w) uint8`` label image): :data:`TEETH` where
 the smoothed image's saturation ``(max - min) / max`` is below ``max_saturation`` and its
-value above ``min_value``; :data:`OCCLUDER` where it is not teeth, bright enough and red
+value above ``min_value`` and, next to a dark pixel (within 2 px, below ``min_value``), above
+the middle of the local 5x5 range (a blurred edge cut half way, where the tooth ends);
+:data:`OCCLUDER` where it is not teeth, bright enough and red
 (``(R - G) / R`` above ``min_redness``: lips, skin); :data:`BACKGROUND` elsewhere. The teeth
 mask is opened (specks of noise go) and closed (pits fill) with a 3x3 ellipse and components
 smaller than ``min_area`` pixels are dropped; the occluder mask is closed with a 5x5 ellipse.
@@ -29,7 +31,13 @@ def segment(rgb, max_saturation: float = 0.3, min_value: float = 80.0, min_redne
     img = cv2.GaussianBlur(np.asarray(rgb, dtype=np.float32), (0, 0), 1.0)
     hi, lo = img.max(axis=2), img.min(axis=2)
     sat = (hi - lo) / np.maximum(hi, 1.0)
-    teeth = ((sat < max_saturation) & (hi > min_value)).astype(np.uint8)
+    teeth = (sat < max_saturation) & (hi > min_value)
+    # where a tooth meets the dark mouth, cut at half the local contrast, not at min_value: the
+    # blurred step crosses min_value about a pixel outside the tooth (a mask a pixel too big)
+    k5 = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
+    top, bottom = cv2.dilate(hi, k5), cv2.erode(hi, k5)
+    teeth &= ~((bottom <= min_value) & (hi < 0.5 * (top + bottom)))
+    teeth = teeth.astype(np.uint8)
     k3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
     teeth = cv2.morphologyEx(teeth, cv2.MORPH_OPEN, k3)
     teeth = cv2.morphologyEx(teeth, cv2.MORPH_CLOSE, k3)

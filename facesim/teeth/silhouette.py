@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from facesim.teeth.cameras import projection_jacobian
-from facesim.teeth.raster import pixel_points, render_ids_window
+from facesim.teeth.raster import contour_points
 from facesim.teeth.segment import OCCLUDER, TEETH
 
 
@@ -115,16 +115,7 @@ class Model:
 
     def contour(self, view: View, upper, lower) -> Contour:
         """The model contour of the poses in ``view``."""
-        Vw = self.posed(upper, lower)
-        _, ids, r0, c0 = render_ids_window(view.camera, Vw, self.F)
-        rows, cols = np.nonzero(_inner_boundary(ids >= 0))
-        tri = ids[rows, cols]
-        # a window cut by the image's edge: the model goes on beyond it, no contour there
-        inside = (rows + r0 > 0) & (rows + r0 < view.camera.height - 1) & (cols + c0 > 0) & \
-            (cols + c0 < view.camera.width - 1)
-        rows, cols, tri = rows[inside] + r0, cols[inside] + c0, tri[inside]
-        bary = pixel_points(view.camera, Vw, self.F, tri, rows, cols)
-        rest = np.einsum("kc,kcx->kx", bary, self.V[self.F[tri]])
+        rows, cols, tri, rest = contour_points(view.camera, self.posed(upper, lower), self.F, self.V)
         body = (tri >= self.n_upper_F).astype(np.int8)
         return Contour(np.column_stack([cols, rows]).astype(np.float64), rest, body, view.usable[rows, cols])
 
@@ -143,13 +134,15 @@ class Pairs:
 def energy_and_pairs(view: View, contour: Contour, body: int | None, gate: float):
     """``(energy px^2, pairs, stats)`` of one view: the two truncated terms (module docstring) over
     all bodies, and the pairs of ``body`` (None: no pairs). ``stats`` = (visible model points of
-    each body (2,), of them within ``gate / 2`` of the data (2,), all model points of each body (2,))."""
+    each body (2,), of them within ``gate / 2`` of the data (2,), all model points of each body (2,),
+    (data contour pixels, of them within ``gate / 2`` of the model) (2,))."""
     g2 = gate * gate
     vis = contour.visible
     uv = contour.uv
     counts = np.array([(contour.body == b).sum() for b in (0, 1)])
     if view.tree is None or not vis.any():
-        stats = (np.array([(vis & (contour.body == b)).sum() for b in (0, 1)]), np.zeros(2, int), counts)
+        stats = (np.array([(vis & (contour.body == b)).sum() for b in (0, 1)]), np.zeros(2, int), counts,
+                 np.array([len(view.edges), 0]))
         return 2.0 * g2, None, stats
     iu = np.clip(np.rint(uv[vis]).astype(int), 0, None)
     d_md = view.distance[iu[:, 1], iu[:, 0]].astype(np.float64)
@@ -160,7 +153,8 @@ def energy_and_pairs(view: View, contour: Contour, body: int | None, gate: float
     e_dm = np.where(found, d_dm * d_dm, g2).mean()
     near = d_md < 0.5 * gate
     stats = (np.array([(contour.body[vis] == b).sum() for b in (0, 1)]),
-             np.array([((contour.body[vis] == b) & near).sum() for b in (0, 1)]), counts)
+             np.array([((contour.body[vis] == b) & near).sum() for b in (0, 1)]), counts,
+             np.array([len(found), int((d_dm < 0.5 * gate).sum())]))
     pairs = None
     if body is not None:
         # model -> data: visible model points of the body to their nearest data contour pixel

@@ -13,12 +13,15 @@ point-to-line model is the energy's own quadratic model, so a few steps converge
 millimetres off. The basin is widened coarse to fine: the images and cameras at 1/4, 1/2 and
 full resolution, with match gates shrinking with the pixel size.
 
-Trust (never silently kept): a body's *confidence* is the share of its model contour points
-(at the final pose, in all cameras) that are visible (not near an occluder) and lie within
-``match_px`` of the data's contour; ``sigma_mm`` the standard deviation of the incisal point
+Trust (never silently kept): a body's *confidence* is the share of its visible model contour
+points (at the final pose, in all cameras; visible: not near an occluder) that lie within
+``match_px`` of the data's contour, scaled down by ``matched length / min_matched_mm`` when less
+than ``min_matched_mm`` of contour matches (teeth mostly hidden); ``sigma_mm`` the standard
+deviation of the incisal point
 from the Gauss-Newton covariance ``s^2 (J^T W J)^-1``. A jaw with confidence below
 ``min_confidence``, ``sigma_mm`` above ``max_sigma_mm`` or an RMS residual above
-``max_residual_px`` (a lost track) is *flagged*: the frame keeps the
+``max_residual_px`` (a lost track), or leaving more than ``1 - min_explained`` of the data's contour
+unexplained (teeth fitted off behind the lips) is *flagged*: the frame keeps the
 previous trusted jaw pose (held), and so does a flagged head.
 """
 
@@ -42,9 +45,15 @@ class TrackOptions:
     levels : image scales, coarse to fine; iterations : Gauss-Newton steps per body and level;
     gates : match gates per level, in that level's pixels; huber : px, Huber threshold of the
     residuals; occluder_px : margin around occluders; match_px : a contour point matches within
-    it (confidence); min_confidence, max_sigma_mm : the flag thresholds; track_head : False keeps
+    it (confidence); min_confidence, max_sigma_mm : the flag thresholds; min_matched_mm : mm of
+    matched contour (all cameras) below which the confidence shrinks; min_explained : the share
+    of the data's contour pixels that the fitted model must explain (lie within ``match_px`` of
+    its contour), else the frame is flagged (teeth fitted off into hiding); track_head : False keeps
     the upper teeth at the identity (a stabilised head); golden_steps : line-search evaluations;
-    refine : passes over both bodies again at the finest level.
+    refine : passes over both bodies again at the finest level; restart_residual_px : a fit
+    whose RMS residual exceeds it (or that is flagged) is re-fitted from the other start poses
+    (:meth:`Tracker.track_frame`); restarts : how many of them, the best at the coarsest level,
+    are fitted in full.
     """
 
     levels: tuple[float, ...] = (0.25, 0.5, 1.0)
@@ -53,12 +62,16 @@ class TrackOptions:
     huber: float = 1.0
     occluder_mm: float = 0.4
     match_mm: float = 0.25
-    min_confidence: float = 0.1
+    min_confidence: float = 0.5
+    min_matched_mm: float = 5.0
+    min_explained: float = 0.6
     max_sigma_mm: float = 0.15
     max_residual_px: float = 1.5
     track_head: bool = True
     golden_steps: int = 6
     refine: int = 1
+    restart_residual_px: float = 1.0
+    restarts: int = 2
 
 
 @dataclass(frozen=True)
@@ -66,7 +79,8 @@ class FrameResult:
     """One tracked frame: ``head (4, 4)`` world from skull, ``jaw (4, 4)`` mandible relative to
     skull (the held pose when flagged), ``fitted (4, 4)`` the jaw the fit found, ``residual`` px
     (RMS point-to-line distance of the jaw's final pairs), ``confidence`` in [0, 1], ``sigma_mm``,
-    ``flagged`` (jaw not trusted), ``head_flagged``, ``seconds``."""
+    ``flagged`` (jaw not trusted), ``head_flagged``, ``seconds``, ``energy`` px^2 (the silhouette
+    energy at the finest level), ``starts`` (the fits made: 1, or more after a restart)."""
 
     head: np.ndarray
     jaw: np.ndarray
@@ -77,6 +91,8 @@ class FrameResult:
     flagged: bool
     head_flagged: bool
     seconds: float
+    energy: float = float("nan")
+    starts: int = 1
 
 
 def _schedule(cameras, options: TrackOptions, mm_per_px: float) -> list[tuple[float, int, float]]:
@@ -210,12 +226,14 @@ class Tracker:
                 break
         return poses[0], poses[1], info, stats
 
-    def _trust(self, body, stats, info, point):
-        """``(confidence, sigma_mm, residual px)`` of ``body`` from the final level's statistics."""
+    def _trust(self, body, stats, info, point, px_mm: float = 0.0):
+        """``(confidence, sigma_mm, residual px)`` of ``body`` from the final level's statistics;
+        ``px_mm`` the size of that level's pixels at the teeth (mm)."""
         o = self.options
-        total = sum(int(s[2][body]) for s in stats)
+        visible = sum(int(s[0][body]) for s in stats)
         matched = sum(int(s[1][body]) for s in stats)
-        confidence = matched / total if total else 0.0
+        confidence = matched / visible if visible else 0.0
+        confidence *= min(1.0, matched * px_mm / o.min_matched_mm)   # too little contour seen: not trusted
         sigma, rms = np.inf, np.inf
         if info is not None:
             A, s2, npts, centre, r = info
@@ -228,53 +246,105 @@ class Tracker:
                 d = point - centre
                 G = np.column_stack([-se3.hat(d), np.eye(3)])       # d point / d (omega, v)
                 sigma = float(np.sqrt(max(np.trace(G @ cov @ G.T), 0.0)))
-        del o
         return confidence, sigma, rms
 
-    def track_frame(self, labels, head0, jaw0) -> FrameResult:
-        """Track one frame of label images ``labels`` (one ``(h, w) uint8`` per camera) from the
-        poses ``head0 (4, 4)`` and ``jaw0 (4, 4)`` (the previous frame's)."""
+    def _fit_pyramid(self, levels, schedule, upper, lower, first: int = 0):
+        """Both bodies fitted level by level from ``first`` (head, then jaw), then ``refine`` passes
+        at the finest level; returns ``(upper, lower, info_u, info_l)``."""
+        o = self.options
+        info_u = info_l = None
+        for views, (_, n_iter, gate) in list(zip(levels, schedule))[first:]:
+            if o.track_head:
+                upper, lower, info_u, _ = self._fit_body(views, upper, lower, 0, gate, n_iter)
+            upper, lower, info_l, _ = self._fit_body(views, upper, lower, 1, gate, n_iter)
+        for _ in range(o.refine):   # again at the finest level: each body now meets the other where it is
+            if o.track_head:
+                upper, lower, info_u, _ = self._fit_body(levels[-1], upper, lower, 0, schedule[-1][2],
+                                                         schedule[-1][1])
+            upper, lower, info_l, _ = self._fit_body(levels[-1], upper, lower, 1, schedule[-1][2], schedule[-1][1])
+        return upper, lower, info_u, info_l
+
+    def _assess(self, levels, schedule, fit):
+        """``(energy px^2, (conf, sigma, rms px), head (conf, sigma) or None)`` of a fitted
+        ``(upper, lower, info_u, info_l)``: the energy at the finest level and gate (what the
+        starts are compared by), the trust of each body (:meth:`_trust`)."""
+        o = self.options
+        upper, lower, info_u, info_l = fit
+        s = schedule[-1][0]
+        energy = self._evaluate(levels[-1], upper, lower, None, schedule[-1][2])[0]
+        match_gate = 2.0 * max(1.0, o.match_mm * s / self.mm_per_px)   # stats count points within gate / 2
+        _, _, stats = self._evaluate(levels[-1], upper, lower, None, match_gate)
+        px_mm = self.mm_per_px / s
+        conf, sigma, rms = self._trust(1, stats, info_l, se3.transform_points(lower, self.dentition.incisor[None])[0],
+                                       px_mm)
+        head = None
+        if o.track_head:
+            c_u, s_u, _ = self._trust(0, stats, info_u,
+                                      se3.transform_points(upper, self.dentition.upper_incisor[None])[0], px_mm)
+            head = (c_u, s_u)
+        n_data = sum(int(st[3][0]) for st in stats)
+        explained = sum(int(st[3][1]) for st in stats) / n_data if n_data else 1.0
+        return energy, (conf, sigma, rms / s if np.isfinite(rms) else rms, explained), head
+
+    def _lost(self, trust, head) -> bool:
+        """Whether a fit's trust says it is not to be kept (the flag rules of the module docstring)."""
+        o = self.options
+        conf, sigma, rms, explained = trust
+        head_bad = head is not None and (head[0] < o.min_confidence or not head[1] <= o.max_sigma_mm)
+        return bool(conf < o.min_confidence or not sigma <= o.max_sigma_mm or head_bad
+                    or not rms <= o.max_residual_px or explained < o.min_explained)
+
+    def track_frame(self, labels, head0, jaw0, start=None, candidates=()) -> FrameResult:
+        """Track one frame of label images ``labels`` (one ``(h, w) uint8`` per camera).
+
+        head0 (4, 4), jaw0 (4, 4) : the last trusted poses (a flagged frame keeps them).
+        start (4, 4) : the jaw pose the fit starts from (default ``jaw0``; e.g. a prediction).
+        candidates : further jaw starts (4, 4) for a fit that looks lost (RMS residual above
+            ``restart_residual_px`` or flagged): each is fitted at the coarsest level, the
+            ``restarts`` best are fitted in full, and the lowest energy of all wins.
+        """
         o = self.options
         t0 = time.perf_counter()
         schedule = _schedule(self.cameras, o, self.mm_per_px)
         levels = _levels(self.cameras, labels, o, [s for s, _, _ in schedule], self.mm_per_px)
-        upper, lower = head0.copy(), head0 @ jaw0
-        info_u = info_l = stats_u = stats_l = None
-        for views, (_, n_iter, gate) in zip(levels, schedule):
-            if o.track_head:
-                upper, lower, info_u, stats_u = self._fit_body(views, upper, lower, 0, gate, n_iter)
-            upper, lower, info_l, stats_l = self._fit_body(views, upper, lower, 1, gate, n_iter)
-        for _ in range(o.refine):   # again at the finest level: each body now meets the other where it is
-            if o.track_head:
-                upper, lower, info_u, stats_u = self._fit_body(levels[-1], upper, lower, 0, schedule[-1][2], n_iter)
-            upper, lower, info_l, stats_l = self._fit_body(levels[-1], upper, lower, 1, schedule[-1][2], n_iter)
-        s = schedule[-1][0]
-        match_gate = 2.0 * max(1.0, o.match_mm * s / self.mm_per_px)   # stats count points within gate / 2
-        _, _, stats_l = self._evaluate(levels[-1], upper, lower, None, match_gate)
-        conf, sigma, rms = self._trust(1, stats_l, info_l, se3.transform_points(lower, self.dentition.incisor[None])[0])
-        head_flagged = False
-        if o.track_head:
-            _, _, stats_u = self._evaluate(levels[-1], upper, lower, None, match_gate)
-            conf_u, sigma_u, _ = self._trust(0, stats_u, info_u,
-                                             se3.transform_points(upper, self.dentition.upper_incisor[None])[0])
-            head_flagged = bool(conf_u < o.min_confidence or not sigma_u <= o.max_sigma_mm)
-            if head_flagged:
-                upper = head0.copy()
+        start = jaw0 if start is None else start
+        best = self._fit_pyramid(levels, schedule, head0.copy(), head0 @ start)
+        energy, trust, head = self._assess(levels, schedule, best)
+        tried = 1
+        if candidates and o.restarts > 0 and (self._lost(trust, head) or not trust[2] <= o.restart_residual_px):
+            # multi-start: rank the candidates by their energy after a jaw fit at the coarsest level
+            views, (_, n_iter, gate) = levels[0], schedule[0]
+            ranked = []
+            for J in candidates:
+                u, lo, _, _ = self._fit_body(views, head0.copy(), head0 @ J, 1, gate, n_iter)
+                ranked.append((self._evaluate(views, u, lo, None, gate)[0], len(ranked), u, lo))
+            ranked.sort(key=lambda r: r[:2])
+            for _, _, u, lo in ranked[:o.restarts]:
+                fit = self._fit_pyramid(levels, schedule, u, lo)
+                e, t, h = self._assess(levels, schedule, fit)
+                tried += 1
+                if e < energy:
+                    best, energy, trust, head = fit, e, t, h
+        upper, lower = best[0], best[1]
+        conf, sigma, rms, _ = trust
+        head_flagged = bool(head is not None and (head[0] < o.min_confidence or not head[1] <= o.max_sigma_mm))
+        if head_flagged:
+            upper = head0.copy()
         fitted = se3.inverse(upper) @ lower
         fitted = se3.from_rt(_orthonormal(fitted[:3, :3]), fitted[:3, 3])
         # a lost track fits worse than the segmentation's pixel noise: flagged too
-        flagged = bool(conf < o.min_confidence or not sigma <= o.max_sigma_mm or head_flagged
-                       or not rms / s <= o.max_residual_px)
+        flagged = self._lost(trust, head)
         jaw = jaw0.copy() if flagged else fitted
-        return FrameResult(upper, jaw, fitted, rms / s if np.isfinite(rms) else rms, conf, sigma, flagged,
-                           head_flagged, time.perf_counter() - t0)
+        return FrameResult(upper, jaw, fitted, rms, conf, sigma, flagged, head_flagged,
+                           time.perf_counter() - t0, energy, tried)
 
 
 #: The frame log beside a poses file: one line per tracked frame (facesim.framelog).
 _LOG_FIELDS = (["frame", "name"] + [f"jaw_{i}{j}" for i in range(4) for j in range(4)]
                + [f"head_{i}{j}" for i in range(4) for j in range(4)]
                + [f"fitted_{i}{j}" for i in range(4) for j in range(4)]
-               + ["residual_px", "confidence", "sigma_mm", "flagged", "head_flagged", "seconds"])
+               + ["residual_px", "confidence", "sigma_mm", "flagged", "head_flagged", "seconds", "energy_px2",
+                  "starts"])
 
 
 def log_path(out) -> "Path":
@@ -288,7 +358,7 @@ def log_path(out) -> "Path":
 def _row(i: int, name: str, r: FrameResult) -> list:
     return [i, name, *np.round(r.jaw.reshape(-1), 12), *np.round(r.head.reshape(-1), 12),
             *np.round(r.fitted.reshape(-1), 12), f"{r.residual:.6g}", f"{r.confidence:.6g}", f"{r.sigma_mm:.6g}",
-            int(r.flagged), int(r.head_flagged), f"{r.seconds:.4g}"]
+            int(r.flagged), int(r.head_flagged), f"{r.seconds:.4g}", f"{r.energy:.6g}", r.starts]
 
 
 def _parse(line: str) -> FrameResult:
@@ -297,14 +367,50 @@ def _parse(line: str) -> FrameResult:
     v = next(csv.reader([line]))
     f = [float(x) for x in v[2:]]
     return FrameResult(np.array(f[16:32]).reshape(4, 4), np.array(f[:16]).reshape(4, 4),
-                       np.array(f[32:48]).reshape(4, 4), f[48], f[49], f[50], bool(f[51]), bool(f[52]), f[53])
+                       np.array(f[32:48]).reshape(4, 4), f[48], f[49], f[50], bool(f[51]), bool(f[52]), f[53], f[54],
+                       int(f[55]))
+
+
+#: Hinge steps (degrees) about the skull's left-right axis through the origin (facesim's frame
+#: puts it between the condyles), applied to the last trusted jaw: starts for a frame that looks
+#: lost in a fast opening or closing.
+HINGE_STEPS_DEG = (-12.0, -6.0, 6.0, 12.0)
+
+
+def _hinge(deg: float) -> np.ndarray:
+    """``(4, 4)``: a rotation by ``deg`` about the x axis (positive: the incisors go down)."""
+    return se3.exp(np.array([np.deg2rad(deg), 0.0, 0.0, 0.0, 0.0, 0.0]))
+
+
+def jaw_starts(history, first=None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """``(start (4, 4), candidates)`` of the next frame's jaw from the frames tracked so far.
+
+    history : list of :class:`FrameResult`, in order. first : (4, 4) the start of the first frame
+    (default rest, the identity). The start is a constant-velocity prediction when the last two
+    frames are trusted (``J2 J1^-1 J2``: the last frame's motion once more), else the last
+    trusted jaw; the candidates (tried when the fit from the start looks lost) are the last
+    trusted jaw, twice the last motion, the last fitted jaw of a flagged frame, rest and the
+    :data:`HINGE_STEPS_DEG` openings and closings of the last trusted jaw.
+    """
+    rest = np.eye(4)
+    prev = history[-1].jaw if history else (rest if first is None else np.asarray(first, dtype=np.float64))
+    start, cands = prev, []
+    if len(history) >= 2 and not history[-1].flagged and not history[-2].flagged:
+        D = history[-1].jaw @ se3.inverse(history[-2].jaw)
+        start = D @ prev
+        cands += [prev, se3.exp(2.0 * se3.log(D)) @ prev]
+    if history and history[-1].flagged:
+        cands.append(history[-1].fitted)
+    cands += [rest] + [_hinge(a) @ prev for a in HINGE_STEPS_DEG]
+    return start, cands
 
 
 def track_capture(capture, dentition, out, options: TrackOptions = TrackOptions(), resume: bool = False,
-                  progress: bool = True) -> dict:
+                  progress: bool = True, first=None) -> dict:
     """Track every frame of ``capture`` (:class:`~facesim.teeth.capture.Capture`) from the rest
-    pose (head and jaw identity at the first frame), each frame warm-started from the previous
-    one; write the poses file ``out`` (``.npz``) at the end and every frame's line to its frame
+    pose (head identity, jaw ``first (4, 4)`` or the identity at the first frame), each frame
+    warm-started from the previous ones (:func:`jaw_starts`: a constant-velocity prediction,
+    other starts when the fit looks lost); write the poses file ``out`` (``.npz``) at the end and every frame's line to its frame
     log (:func:`log_path`) as it is done. ``resume`` keeps the frames of an earlier log of the same
     capture and goes on after them. Returns a summary (frames, flagged, seconds per frame)."""
     from facesim.framelog import FrameLog, csv_line, read_lines
@@ -326,14 +432,16 @@ def track_capture(capture, dentition, out, options: TrackOptions = TrackOptions(
     with FrameLog(log_path(out), header, [done[i] for i in range(len(done))]) as log:
         for i in steps:
             head0 = results[-1].head if results else np.eye(4)
-            jaw0 = results[-1].jaw if results else np.eye(4)
-            r = tracker.track_frame(capture.labels(i), head0, jaw0)
+            start, candidates = jaw_starts(results, first)
+            jaw0 = results[-1].jaw if results else start
+            r = tracker.track_frame(capture.labels(i), head0, jaw0, start, candidates)
             results.append(r)
             log.add(csv_line(_row(i, capture.names[i], r)))
     write_poses(out, dentition, capture.names, results, options)
     seconds = [r.seconds for r in results[len(done):]]
     return {"frames": len(results), "resumed": len(done), "flagged": int(sum(r.flagged for r in results)),
             "head_flagged": int(sum(r.head_flagged for r in results)),
+            "restarted": int(sum(r.starts > 1 for r in results)),
             "seconds_per_frame": float(np.mean(seconds)) if seconds else float("nan")}
 
 
@@ -341,7 +449,8 @@ def write_poses(out, dentition, names, results, options: TrackOptions):
     """The poses file of tracked ``results``: ``poses (N, 4, 4)`` (the jaw, held where flagged: a
     poses file ``facesim jaw fit`` reads), ``reference_point`` (the lower incisal point), ``mandible``
     (points of the lower teeth), ``head``, ``fitted``, ``residual_px``, ``confidence``, ``sigma_mm``,
-    ``flagged``, ``head_flagged``, ``frame_names``, ``meta`` (JSON: source of the teeth, options)."""
+    ``flagged``, ``head_flagged``, ``seconds``, ``energy_px2``, ``starts``, ``frame_names``, ``meta``
+    (JSON: source of the teeth, options)."""
     import dataclasses
     import json
 
@@ -355,7 +464,8 @@ def write_poses(out, dentition, names, results, options: TrackOptions):
                   sigma_mm=np.array([r.sigma_mm for r in results]),
                   flagged=np.array([r.flagged for r in results]),
                   head_flagged=np.array([r.head_flagged for r in results]),
-                  seconds=np.array([r.seconds for r in results]), frame_names=np.array(list(names)),
+                  seconds=np.array([r.seconds for r in results]), energy_px2=np.array([r.energy for r in results]),
+                  starts=np.array([r.starts for r in results]), frame_names=np.array(list(names)),
                   meta=np.array(json.dumps({"format": "facesim-teeth-poses", "teeth": dentition.source,
                                             "options": dataclasses.asdict(options)})))
 
@@ -376,4 +486,5 @@ def _orthonormal(R) -> np.ndarray:
     return Q
 
 
-__all__ = ["FrameResult", "TrackOptions", "Tracker", "log_path", "track_capture", "write_poses"]
+__all__ = ["HINGE_STEPS_DEG", "FrameResult", "TrackOptions", "Tracker", "jaw_starts", "log_path", "track_capture",
+           "write_poses"]

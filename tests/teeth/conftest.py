@@ -8,8 +8,8 @@ SIZE = (480, 270)
 
 
 def jaw_poses():
-    """Four poses of a generated session 4 frames apart (30 fps): the jaw opening along the
-    posterior border, the incisal point 8-13 mm down."""
+    """Four poses of a generated session 4 frames apart (30 fps): the jaw closing from its
+    maximum opening along the posterior border, the incisal point 37-47 mm down."""
     from facesim.jaw.motion import JawMotion
 
     return JawMotion().session(seed=0).poses[[100, 104, 108, 112]]

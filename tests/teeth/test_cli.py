@@ -35,7 +35,7 @@ def test_render_track_round_trip(rendered, capsys):
     cap = root / "cap"
     assert sorted(p.name for p in (cap / "centre").iterdir()) == [f"frame_{i:05d}.png" for i in range(6)]
     code, out, err = _run(["teeth", "track", "--cameras", str(cap / "cameras.json"), "--images", str(cap),
-                           "-o", str(root / "tracked.npz"), "-q"], capsys)
+                           "-o", str(root / "tracked.npz"), "--start", str(root / "poses.npz"), "-q"], capsys)
     assert code == 0, err
     assert "tracked 6 frames" in out
     from facesim.jaw.cli import read_poses
@@ -85,6 +85,8 @@ def test_bad_input_is_one_line(rendered, tmp_path, capsys):
     cases.append((["--cameras", str(tmp_path / "extra.json"), "--images", str(cap)], "camera 'top'"))
     cases.append((["--cameras", str(cap / "cameras.json"), "--images", str(cap), "--upper", "u.obj"],
                   "--upper and --lower go together"))
+    cases.append((["--cameras", str(cap / "cameras.json"), "--images", str(cap), "--start", "nope.npz"],
+                  "--start nope.npz: no such file"))
     cases.append((["--cameras", str(cap / "cameras.json"), "--images", str(cap), "--upper", "u.obj", "--lower",
                    "l.obj"], "u.obj: no such file"))
     for argv, words in cases:

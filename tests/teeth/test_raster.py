@@ -71,3 +71,26 @@ def test_pixel_points_lie_on_their_triangles_and_rays():
     P = project_vertices(cam, X)
     assert np.abs(P[:, 0] - cols).max() < 1e-6 and np.abs(P[:, 1] - rows).max() < 1e-6
     assert np.abs(P[:, 2] - depth[rows, cols]).max() < 1e-6
+
+
+def test_contour_points_match_the_numpy_route():
+    """The fused kernel against the z-buffer's inner boundary (numpy) and :func:`pixel_points`."""
+    from facesim.teeth.raster import contour_points
+
+    cam, V, F = _scene(6)
+    X = V * 2.0 + 1.0                          # points interpolated over other vertices
+    _, ids = render_ids(cam, V, F)
+    m = ids >= 0
+    inner = m.copy()
+    inner[1:, :] &= m[:-1, :]
+    inner[:-1, :] &= m[1:, :]
+    inner[:, 1:] &= m[:, :-1]
+    inner[:, :-1] &= m[:, 1:]
+    edge = m & ~inner
+    edge[0, :] = edge[-1, :] = edge[:, 0] = edge[:, -1] = False    # the image's border is left out
+    rows, cols = np.nonzero(edge)
+    bary = pixel_points(cam, V, F, ids[rows, cols], rows, cols)
+    ref = np.einsum("kc,kcx->kx", bary, X[F[ids[rows, cols]]])
+    r, c, tri, pts = contour_points(cam, V, F, X)
+    assert len(r) > 30 and (r == rows).all() and (c == cols).all() and (tri == ids[rows, cols]).all()
+    assert np.abs(pts - ref).max() < 1e-9
