@@ -127,7 +127,10 @@ def test_parameters_mean_opening_lateral_protrusion(data, rig):
     assert m["opening"][0] > 5.0                                                   # d1 opens
     assert m["lateral"][1] > 2.0 and abs(m["lateral"][1]) > 3 * abs(m["opening"][1])  # d2 to the left
     assert m["protrusion"][2] > 1.0 and m["protrusion"][2] > 3 * abs(m["lateral"][2])  # d3 forward
-    assert rig.bounds[0, 1] > 2.0 and rig.bounds[2, 0] > -0.5                      # open far, retrude little
+    # open far; retrude little against the protrusion (the retrusion range relative to the
+    # protrusion range: the latent scale itself moves with the optimiser's path, -0.34 to -0.58
+    # measured on two scipy/numpy versions)
+    assert rig.bounds[0, 1] > 2.0 and -rig.bounds[2, 0] < 0.25 * rig.bounds[2, 1]
 
 
 def test_components_add_up(rig):
