@@ -128,8 +128,8 @@ def test_parameters_mean_opening_lateral_protrusion(data, rig):
     assert m["lateral"][1] > 2.0 and abs(m["lateral"][1]) > 3 * abs(m["opening"][1])  # d2 to the left
     assert m["protrusion"][2] > 1.0 and m["protrusion"][2] > 3 * abs(m["lateral"][2])  # d3 forward
     # open far; retrude little against the protrusion (the retrusion range relative to the
-    # protrusion range: the latent scale itself moves with the optimiser's path, -0.34 to -0.58
-    # measured on two scipy/numpy versions)
+    # protrusion range: the latent scale itself moves with the optimiser's path -- above -0.5 in
+    # earlier sessions, -0.58 with numpy 2.4.6 / scipy 1.17.1, range [-0.58, 3.46])
     assert rig.bounds[0, 1] > 2.0 and -rig.bounds[2, 0] < 0.25 * rig.bounds[2, 1]
 
 
