@@ -17,7 +17,7 @@ Then, whatever the route (:func:`import_model`):
    between the condyles); the transform is kept in ``meta["input_frame"]``;
 2. bones checked against the skin (:func:`~facesim.importing.meshes.check_anatomy`), the flesh's
    boundary split into the outer skin and the inner surface (:func:`~facesim.importing.meshes.split_skin`);
-3. attachments (:func:`attachments`): flesh nodes on a bone move with it (nearest bone wins, so
+3. attachments (:func:`attachments`): flesh nodes on or inside a bone move with it (nearest bone wins, so
    the sets are disjoint); inner-surface nodes that face the teeth (the lips' and cheeks' lining)
    stay free; with ``fix_boundary="cut"`` the rest of the inner surface -- where a face mask ends
    or lies on bone the input does not have (a mask's forehead, the cut behind the cheeks) -- is
@@ -391,10 +391,21 @@ def _nearest(points, surfaces) -> np.ndarray:
     return cKDTree(S).query(points)[0]
 
 
+def _inside(points, surfaces) -> np.ndarray:
+    """(k,) bool: ``points (k, 3)`` mm inside any of the closed ``surfaces`` (open ones have no inside)."""
+    import trimesh
+
+    inside = np.zeros(len(points), bool)
+    for s in surfaces:
+        if s.closed:
+            inside |= trimesh.Trimesh(s.vertices, s.faces, process=False).contains(points)
+    return inside
+
+
 def attachments(X, T, split, mandible, crania, teeth, fix_boundary: str = "cut"):
     """``(cranium_nodes, jaw_nodes, report)`` of the flesh ``X (n, 3)`` mm, ``T (m, 4)``.
 
-    Every node within ``max(ATTACH_MM, ATTACH_EDGE x median edge)`` of a bone moves with it (the
+    Every node inside a closed bone, or within ``max(ATTACH_MM, ATTACH_EDGE x median edge)`` of a bone moves with it (the
     nearer bone when both are that close); inside the flesh the teeth count with their bone (the
     flesh round them is gum), while on its surface a node nearer the teeth than the bone is the
     lining of the lips and cheeks against them, and stays free unless it touches a tooth (within
@@ -407,8 +418,11 @@ def attachments(X, T, split, mandible, crania, teeth, fix_boundary: str = "cut")
     e = np.sort(T[:, [0, 1, 0, 2, 0, 3, 1, 2, 1, 3, 2, 3]].reshape(-1, 2), axis=1)
     edge = float(np.median(np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1)))
     tol = max(ATTACH_MM, ATTACH_EDGE * edge)
-    d_j = _nearest(X, [mandible])
-    d_c = _nearest(X, crania)
+    # a node inside a closed bone (a volume mesh that overlaps it: Badin's flesh reaches 5 mm into
+    # the mandible) is on it, however deep: the bone is rigid and carries what lies in it
+    in_j, in_c = _inside(X, [mandible]), _inside(X, crania)
+    d_j = np.where(in_j, 0.0, _nearest(X, [mandible]))
+    d_c = np.where(in_c, 0.0, _nearest(X, crania))
     d_tu = _nearest(X, [t for t in teeth if t.role == "teeth_upper"])
     d_tl = _nearest(X, [t for t in teeth if t.role == "teeth_lower"])
     d_t = np.minimum(d_tu, d_tl)
@@ -440,6 +454,7 @@ def attachments(X, T, split, mandible, crania, teeth, fix_boundary: str = "cut")
         cut = rest & ~(d_j < d_c)
         cra |= cut
     counts = {"cranium": int(cra.sum()), "jaw": int(jaw.sum()), "on a bone": int(((d_j <= tol) | (d_c <= tol)).sum()),
+              "inside a bone": int((in_j | in_c).sum()),
               "across a gap": int((gap_j | gap_c).sum()), "lining (free)": int(lining.sum()),
               "cut (fixed)": int(cut.sum()), "free inner": int((rest & ~cut).sum())}
     if not cra.any():
