@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facesim import se3
 from facesim.demo import DEMO_CLIP, SOLVE_MODEL, load_truth, run_demo
 from facesim.inverse.jaw_prior import JawPrior
 from facesim.jaw.markerless import evaluate, train
@@ -43,12 +44,9 @@ def incisor_errors(model, out: Path, truth: dict) -> np.ndarray:
     """Per solved frame, mm: the lower incisal point under the solved jaw against the true jaw."""
     jm = SlidingCondyleJaw(model.jaw)
     rows = np.loadtxt(out / "jaw.csv", delimiter=",", skiprows=1, ndmin=2)
-    p = np.asarray(model.jaw.incisor, dtype=np.float64)
-    err = []
-    for row in rows:
-        T1, T0 = jm.transform(row[1:4]), jm.transform(truth["jaw"][int(row[0])])
-        err.append(np.linalg.norm((T1[:3, :3] - T0[:3, :3]) @ p + T1[:3, 3] - T0[:3, 3]))
-    return np.array(err)
+    solved = np.stack([jm.transform(row[1:4]) for row in rows])
+    true = np.stack([jm.transform(truth["jaw"][int(row[0])]) for row in rows])
+    return se3.vertex_errors(solved, true, np.asarray(model.jaw.incisor, dtype=np.float64)[None])
 
 
 def main():

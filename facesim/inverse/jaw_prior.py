@@ -107,8 +107,9 @@ class PriorRows:
     weight: float
 
     def residual(self, jaw_model, q) -> np.ndarray:
-        T = np.asarray(jaw_model.transform(q), dtype=np.float64)
-        return (self.rest @ T[:3, :3].T + T[:3, 3] - self.target).ravel()
+        from facesim import se3
+
+        return (se3.transform_points(jaw_model.transform(q), self.rest) - self.target).ravel()
 
     def jacobian(self, jaw_model, q) -> np.ndarray:
         """``(3B, n_params)`` derivative of :meth:`residual` in the jaw parameters."""

@@ -297,7 +297,7 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
         head = start.head_frame if start.head_frame is not None else initial_head_frame(model, target)
     prior = None
     if options.jaw_prior is not None:
-        controls, x, jacobian, prior = _with_prior(sim, space, options, target, head, controls, x, jacobian)
+        controls, prior = _with_prior(sim, space, options, target, head, controls, x)
     try:
         fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k, head, prior)
     except SolverError as exc:
@@ -341,10 +341,10 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     return solved, _Start(fit.controls, fit.x, J, fit.head_frame)
 
 
-def _with_prior(sim, space, options: TrackOptions, target, head, controls, x, jacobian):
+def _with_prior(sim, space, options: TrackOptions, target, head, controls, x):
     """The frame's jaw prior rows from its markers (in the skull frame: undone by ``head`` when the
     head frame is solved), and its start: a cold frame (``x`` None) starts at the predicted jaw.
-    Returns ``(controls, x, jacobian, rows)``."""
+    Returns ``(controls, rows)``."""
     model, jp = sim.model, options.jaw_prior
     m = np.asarray(target, dtype=np.float64)
     if head is not None:
@@ -355,7 +355,7 @@ def _with_prior(sim, space, options: TrackOptions, target, head, controls, x, ja
     if x is None and space.n_jaw:
         q = jp.start(sim.jaw_model, points)
         controls = dataclasses.replace(controls, jaw=q)
-    return controls, x, jacobian, jp.rows(points, options.fit.noise)
+    return controls, jp.rows(points, options.fit.noise)
 
 
 def initial_head_frame(model, target) -> np.ndarray:

@@ -5,6 +5,7 @@ checks of a predictor bound to a model."""
 import numpy as np
 import pytest
 
+from facesim import se3
 from facesim.controls import Controls
 from facesim.errors import FacesimError
 from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
@@ -26,8 +27,7 @@ def box_sim(box_model):
 
 
 def _bone_points(jaw_model, q):
-    T = jaw_model.transform(q)
-    return BONE @ T[:3, :3].T + T[:3, 3]
+    return se3.transform_points(jaw_model.transform(q), BONE)
 
 
 def test_prior_rows_derivative_matches_central_differences(box_model):
