@@ -211,11 +211,12 @@ def _solve3(A, r, dx):
 
 
 @njit(parallel=True, **JIT_FLAGS)
-def tps_inverse(Y, X0, C, W, M, t, iterations, tol, X, residual):
+def tps_inverse(Y, X0, C, W, M, t, iterations, tol, X, residual, JX):
     """Points ``X (k, 3)`` with ``tps(X) = Y (k, 3)``, by Newton from ``X0 (k, 3)`` (same map
     parameters as :func:`tps_evaluate`): ``x <- x - J(x)^-1 (tps(x) - y)``, halving a step that
     does not reduce the residual (up to 30 times), at most ``iterations`` steps or until
-    ``|tps(x) - y| <= tol`` mm. Writes the final ``residual (k,)`` mm."""
+    ``|tps(x) - y| <= tol`` mm. Writes the final ``residual (k,)`` mm and the map's Jacobian at
+    ``X``, ``JX (k, 3, 3)`` (as :func:`tps_evaluate`'s)."""
     for i in prange(Y.shape[0]):
         f = np.empty(3)
         J = np.empty((3, 3))
@@ -229,6 +230,7 @@ def tps_inverse(Y, X0, C, W, M, t, iterations, tol, X, residual):
         for k in range(3):
             r[k] = f[k] - Y[i, k]
         res = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+        Jt = np.empty((3, 3))
         for _ in range(iterations):
             if res <= tol or not _solve3(J, r, dx):
                 break
@@ -237,7 +239,8 @@ def tps_inverse(Y, X0, C, W, M, t, iterations, tol, X, residual):
             for _h in range(30):
                 for k in range(3):
                     xt[k] = x[k] - step * dx[k]
-                _tps_at(xt[0], xt[1], xt[2], C, W, M, t, f, J, False)
+                # the Jacobian costs little next to the kernel's log: take it at every trial point
+                _tps_at(xt[0], xt[1], xt[2], C, W, M, t, f, Jt, True)
                 rn = math.sqrt((f[0] - Y[i, 0]) ** 2 + (f[1] - Y[i, 1]) ** 2 + (f[2] - Y[i, 2]) ** 2)
                 if rn < res:
                     improved = True
@@ -247,12 +250,14 @@ def tps_inverse(Y, X0, C, W, M, t, iterations, tol, X, residual):
                 break
             for k in range(3):
                 x[k] = xt[k]
-            _tps_at(x[0], x[1], x[2], C, W, M, t, f, J, True)
-            for k in range(3):
                 r[k] = f[k] - Y[i, k]
-            res = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+                for j in range(3):
+                    J[k, j] = Jt[k, j]
+            res = rn
         for k in range(3):
             X[i, k] = x[k]
+            for j in range(3):
+                JX[i, k, j] = J[k, j]
         residual[i] = res
 
 

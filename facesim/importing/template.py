@@ -54,6 +54,11 @@ MIN_JACOBIAN_DET = 0.1
 #: Newton tolerance of the inverse warp (mm); points not inverted within INVERSE_MAX_MM are refused.
 INVERSE_TOL_MM = 1e-9
 INVERSE_MAX_MM = 1e-6
+#: the same for the muscle transfer's quadrature samples: they are only located in the template's
+#: tets (mm in size) and averaged 20 to a tet, so 0.1 micrometre is ample; Newton from the nodes'
+#: interpolant then needs about 2 evaluations of the spline instead of 3.5
+SAMPLE_TOL_MM = 1e-4
+SAMPLE_MAX_MM = 1e-3
 
 
 # =========================================================================== landmarks
@@ -303,21 +308,25 @@ class Warp:
         """(k,) det J at template points ``P (k, 3)``: the local volume ratio subject / template."""
         return np.linalg.det(self.jacobian(P))
 
-    def inverse(self, Q, guess=None, return_residual: bool = False):
+    def inverse(self, Q, guess=None, return_residual: bool = False, tol: float = INVERSE_TOL_MM,
+                return_jacobian: bool = False):
         """(k, 3) template points mapped onto the subject points ``Q (k, 3)``, mm.
 
         Starts from ``guess (k, 3)`` (default: the spline fitted the other way round) and refines
-        by Newton steps with the analytic Jacobian until ``|warp(p) - q| <= INVERSE_TOL_MM``.
-        With ``return_residual`` also returns that residual ``(k,)`` mm (large where the warp
-        folds or has no preimage nearby).
+        by Newton steps with the analytic Jacobian until ``|warp(p) - q| <= tol`` mm. With
+        ``return_residual`` also returns that residual ``(k,)`` mm (large where the warp folds or
+        has no preimage nearby), with ``return_jacobian`` the warp's Jacobian at the points found
+        ``(k, 3, 3)`` (as :meth:`jacobian`; Newton has it at no extra cost), in that order.
         """
         Q = _points(Q)
         X0 = self.backward.evaluate(Q) if guess is None else _points(guess)
         X = np.empty_like(Q)
         res = np.empty(len(Q))
+        J = np.empty((len(Q), 3, 3))
         f = self.forward
-        _k.tps_inverse(Q, X0, f.C, f.W, f.M, f.t, 30, INVERSE_TOL_MM, X, res)
-        return (X, res) if return_residual else X
+        _k.tps_inverse(Q, X0, f.C, f.W, f.M, f.t, 30, float(tol), X, res, J)
+        out = (X,) + ((res,) if return_residual else ()) + ((J,) if return_jacobian else ())
+        return out[0] if len(out) == 1 else out
 
     def landmark_error(self) -> np.ndarray:
         """(l,) mm, ``|warp(src) - dst|`` per landmark (0 up to round-off without smoothing)."""
@@ -455,15 +464,18 @@ def _check_mesh(X, tets, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return X, tets, vol
 
 
-def _pull_back(warp: Warp, Q: np.ndarray, guess, what: str) -> np.ndarray:
-    P, res = warp.inverse(Q, guess=guess, return_residual=True)
-    bad = ~(res <= INVERSE_MAX_MM)
+def _pull_back(warp: Warp, Q: np.ndarray, guess, what: str, tol: float = INVERSE_TOL_MM,
+               limit: float = INVERSE_MAX_MM) -> tuple[np.ndarray, np.ndarray]:
+    """``warp.inverse`` of ``Q`` from ``guess`` with its Jacobian there; a one-line error where a
+    point is not inverted within ``limit`` mm (the warp folds)."""
+    P, res, J = warp.inverse(Q, guess=guess, return_residual=True, tol=tol, return_jacobian=True)
+    bad = ~(res <= limit)
     if bad.any():
         i = int(np.argmax(np.where(np.isfinite(res), res, np.inf)))
         raise FacesimError(f"landmark warp: cannot be inverted at {int(bad.sum()):,} of {len(Q):,} {what} (residual "
                            f"up to {res[i]:.3g} mm at ({Q[i, 0]:.1f}, {Q[i, 1]:.1f}, {Q[i, 2]:.1f}) mm): it folds; "
                            f"are some landmarks mislabelled (left/right swapped?) or in another frame?")
-    return P
+    return P, J
 
 
 # ============================================================================ the muscles
@@ -506,7 +518,7 @@ def transfer_muscles(template: FaceModel, warp: Warp, X, tets, samples_per_tet: 
     # the warp must not fold over the template, and must be invertible and unfolded over the
     # subject's nodes pulled back into template space
     det_lo, det_hi = warp.check_unfolded(template.X, "the template mesh")
-    Yn = _pull_back(warp, X, None, "target nodes")
+    Yn, _ = _pull_back(warp, X, None, "target nodes")
     lo, hi = warp.check_unfolded(Yn, "the target mesh")
     det_lo, det_hi = min(det_lo, lo), max(det_hi, hi)
 
@@ -539,8 +551,7 @@ def transfer_muscles(template: FaceModel, warp: Warp, X, tets, samples_per_tet: 
     # samples of the candidates, pulled back (Newton from the linear interpolant of the nodes)
     Ps = np.einsum("sk,ckj->csj", lam, X[tets[cand]]).reshape(-1, 3)
     guess = np.einsum("sk,ckj->csj", lam, Yn[tets[cand]]).reshape(-1, 3)
-    Ys = _pull_back(warp, Ps, guess, "target samples")
-    Fs = warp.jacobian(Ys)
+    Ys, Fs = _pull_back(warp, Ps, guess, "target samples", SAMPLE_TOL_MM, SAMPLE_MAX_MM)
     s_tet, _ = loc.locate(Ys)
     s_tet = np.ascontiguousarray(s_tet.reshape(len(cand), q))
     Fs = np.ascontiguousarray(Fs.reshape(len(cand), q, 3, 3))
