@@ -204,6 +204,10 @@ def test_each_muscle_lands_where_the_template_has_it(volume_model):
     tc, sc = _centroids(template), _centroids(model)
     flagged = model.meta["import"]["template"]["muscles"]["flagged"]
     assert {"frontalis_L", "frontalis_R"} <= set(flagged)
+    # only muscles of the upper face, where the mask is cut (no forehead, open at the eyes), may be
+    # flagged: how many of the eye muscles cross the 25% outside threshold varies with fTetWild's mesh
+    near_the_cut = ("frontalis", "corrugator", "procerus", "orbicularis_oculi", "levator_labii_superioris_alaeque_nasi")
+    assert all(name.startswith(near_the_cut) for name in flagged), flagged
     checked = 0
     for name, c in sc.items():
         if name in flagged:
@@ -215,7 +219,7 @@ def test_each_muscle_lands_where_the_template_has_it(volume_model):
         elif name.endswith("_R"):
             assert c[0] < 0, name
         checked += 1
-    assert checked >= 24
+    assert checked >= 32 - 10  # every muscle of the lower face and the cheeks
 
 
 def test_units_and_rigid_motion_do_not_change_the_model(tmp_path):
