@@ -40,7 +40,8 @@ point of a 0.5 mm grid in x, y; the profile is its column at x = ``x_mid``):
   above it; where the skin ends sooner (a mask open around the eyes) the chord ends at its top
   and the landmark is marked as an estimate in ``how``.
 * ``stomion``: the deepest point of the profile between 8 mm below the lower incisal point and
-  8 mm above the upper one (the crease or gap between the lips); across a gap, the midpoint of
+  8 mm above the upper one (the crease or gap between the lips); across a gap (rows of the depth
+  map with no skin between rows with skin, however far apart the lips' depths), the midpoint of
   the lips' edges above and below it (those edges are the ends of the lips' profiles below).
 * ``subnasale``: the profile point deepest behind the chord pronasale - upper lip's edge (where
   the nose meets the lip); ``labiale_superius``: the profile point farthest in front of the
@@ -310,6 +311,23 @@ def _profile_range(dm: DepthMap, i: int, y_lo: float, y_hi: float) -> tuple[np.n
     return j, dm.z[i, j]
 
 
+def _inner_gap(finite: np.ndarray) -> tuple[int, int] | None:
+    """The longest run ``(first, last)`` of False in ``finite`` with True on both sides, or None."""
+    best = None
+    k, n = 0, len(finite)
+    while k < n:
+        if finite[k]:
+            k += 1
+            continue
+        e = k
+        while e + 1 < n and not finite[e + 1]:
+            e += 1
+        if k > 0 and e < n - 1 and (best is None or e - k > best[1] - best[0]):
+            best = (k, e)
+        k = e + 1
+    return best
+
+
 def _most_forward(dm: DepthMap, i: int, y_lo: float, y_hi: float) -> np.ndarray | None:
     j, z = _profile_range(dm, i, y_lo, y_hi)
     if not np.isfinite(z).any():
@@ -366,25 +384,30 @@ def skin_landmarks(skin: Mesh, bones: dict[str, np.ndarray], x_mid: float = 0.0)
                 how["nasion"] += " (at the edge: the skin is open there)"
     # stomion: the deepest point (or gap) of the profile at the teeth; the lips' edges round it
     j, z = _profile_range(dm, im, li[1] - 8.0, ui[1] + 8.0)
-    if np.isfinite(z).any():
-        ref = np.max(z[np.isfinite(z)])
-        deep = ~np.isfinite(z) | (z < ref - 5.0)
-        k = int(np.argmin(np.where(np.isfinite(z), z, -1e9)))
-        a = b = k
-        if deep[k]:
-            while a > 0 and deep[a - 1]:
-                a -= 1
-            while b < len(z) - 1 and deep[b + 1]:
-                b += 1
-        if deep[k] and a > 0 and b < len(z) - 1:
+    finite = np.isfinite(z)
+    if finite.any():
+        gap = _inner_gap(finite)
+        if gap is not None:   # the lips are apart: rows with no skin between rows with skin
+            a, b = gap
+        else:                 # they touch in the profile: the crease, where it is deeper than 5 mm
+            deep = z < np.max(z) - 5.0
+            k = int(np.argmin(z))
+            a = b = k
+            if deep[k]:
+                while a > 0 and deep[a - 1]:
+                    a -= 1
+                while b < len(z) - 1 and deep[b + 1]:
+                    b += 1
+            if not (deep[k] and a > 0 and b < len(z) - 1):
+                a = b = None
+        if a is not None:
             lower, upper = dm.point(im, int(j[a - 1])), dm.point(im, int(j[b + 1]))
             st = 0.5 * (lower + upper)
-            how["stomion"] = "midpoint of the lips' edges across the gap between them"
+            how["stomion"] = "midpoint of the lips' edges across the " + ("gap" if gap else "crease") + " between them"
         else:
-            st = upper = lower = dm.point(im, int(j[k]))
+            st = upper = lower = dm.point(im, int(j[int(np.argmin(np.where(finite, z, np.inf)))]))
             how["stomion"] = "deepest point of the profile between the lips"
-        if np.isfinite(st).all():
-            out["stomion"] = st
+        out["stomion"] = st
     if "stomion" in out:
         sn = _deepest_behind(dm, im, prn, upper)
         if sn is not None:

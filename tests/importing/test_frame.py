@@ -277,3 +277,36 @@ def test_badin_landmarks(badin):
     assert found["labiale_superius"][1] > found["stomion"][1] > found["labiale_inferius"][1] > found["soft_pogonion"][1]
     assert found["soft_pogonion"][2] > found["pogonion"][2] + 5            # soft tissue over the chin
     assert all(isinstance(how[n], str) and how[n] for n in found)
+
+
+def _slit_face(lower_back: float, half_width: float = 25.0) -> Mesh:
+    """A height-field face (1 mm grid, nose at the origin) whose lower lip and chin sit
+    ``lower_back`` mm behind the upper lip, with a 2 mm slit between the lips at y = -40."""
+    xs, ys = np.arange(-60.0, 61.0), np.arange(-110.0, 61.0)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    Z = 100.0 - 0.004 * X**2 - np.where(Y < -40.0, lower_back, 0.0) + 15.0 * np.exp(-(X**2 + Y**2) / 60.0)
+    V = np.c_[X.ravel(), Y.ravel(), Z.ravel()]
+    idx = np.arange(len(V)).reshape(X.shape)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    F = np.r_[np.c_[a.ravel(), b.ravel(), c.ravel()], np.c_[a.ravel(), c.ravel(), d.ravel()]]
+    centre = V[F].mean(axis=1)
+    slit = (np.abs(centre[:, 0]) < half_width) & (np.abs(centre[:, 1] + 40.0) < 1.0)
+    return Mesh(V, F[~slit])
+
+
+@pytest.mark.parametrize("lower_back", [0.0, 3.0, 6.0, 10.0])
+def test_stomion_across_a_gap_whatever_the_lips_depths(lower_back):
+    """The lips' slit is found from the gap in the profile, however far the lower lip sits behind
+    the upper one (a 5 mm 'deep' threshold used to swallow a lower lip 5 mm back, and with it the
+    stomion and the mouth corners: one in four fTetWild meshes of the Badin face)."""
+    from facesim.importing.landmarks import skin_landmarks
+
+    bones = {"incisor": np.array([0.0, -43.0, 85.0]), "upper_incisor": np.array([0.0, -39.0, 88.0]),
+             "menton": np.array([0.0, -85.0, 70.0])}
+    found, how = skin_landmarks(_slit_face(lower_back), bones)
+    assert "gap" in how["stomion"]
+    np.testing.assert_allclose(found["stomion"][:2], [0.0, -40.0], atol=1.0)
+    assert found["stomion"][2] == pytest.approx(100.0 - lower_back / 2, abs=0.6)   # between the lips' edges
+    for name, side in (("cheilion_left", 1), ("cheilion_right", -1)):
+        assert side * found[name][0] == pytest.approx(25.0, abs=1.5), name
+    assert found["labiale_inferius"][1] < -40.0 < found["labiale_superius"][1]
