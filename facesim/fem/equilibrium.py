@@ -36,6 +36,11 @@ from facesim.kinematics.jaw_models import JawModel, RigidJaw, make_jaw_model
 from facesim.model import FaceModel
 from facesim.se3 import interpolate_rigid, rigid_fit
 
+#: a starting guess whose worst simulated tet keeps less than this fraction of its rest volume
+#: (or is inverted) is refined by as-rigid-as-possible steps (:meth:`FaceSimulator.predict`)
+PREDICT_MIN_J = 0.2
+PREDICT_ARAP_ITERATIONS = 5
+
 
 @dataclass(frozen=True)
 class EquilibriumOptions:
@@ -166,6 +171,7 @@ class FaceSimulator:
             # (scipy's default column ordering took 86 s on the paper-size face, this 1-2 s)
             lu = PardisoFactor(Lff) if pardiso_available() else factorize(Lff)
             self._laplace = (free, fixed, lu, L[free][:, fixed].tocsr())
+            self._edges = (np.ascontiguousarray(e, dtype=np.int64), w)
         return self._laplace
 
     def predict(self, controls: Controls, x=None, transforms=None) -> np.ndarray:
@@ -182,7 +188,33 @@ class FaceSimulator:
         free, fixed, lu, Lfc = self._harmonic()
         out = target.copy()
         out[free] = base[free] + lu.solve(-(Lfc @ d))
+        rel = self.model.tet_volumes(out)[self.elems] / self.rest.V0[self.elems]
+        if rel.min() < PREDICT_MIN_J:
+            out = self._as_rigid_as_possible(base, out, PREDICT_ARAP_ITERATIONS)
         return out
+
+    def _as_rigid_as_possible(self, base, x, iterations: int) -> np.ndarray:
+        """``x (n, 3)`` with its free nodes moved by ``iterations`` local-global steps of
+        as-rigid-as-possible deformation (Sorkine & Alexa 2007) of ``base``'s edges onto ``x``'s
+        (the mesh's edge graph, weights 1/rest length, the prefactorised Laplacian of
+        :meth:`_harmonic`): harmonic interpolation of a large bone motion shears the flesh next to
+        the bone, rotated edges follow it -- on the Badin face opened 0.3 rad from rest, 30
+        inverted tets in the harmonic start, 17 after these steps, and Newton 62 -> 23 iterations
+        with the 0.01 clamp (benchmarks/RESULTS.md, session 20)."""
+        from facesim._kernels.arap import best_rotations, edge_covariances, rotated_edges_rhs
+
+        free, fixed, lu, Lfc = self._harmonic()
+        e, w = self._edges
+        base = np.ascontiguousarray(base, dtype=np.float64)
+        n = len(base)
+        S, R, b = np.empty((n, 3, 3)), np.empty((n, 3, 3)), np.empty((n, 3))
+        x = np.array(x, dtype=np.float64)
+        for _ in range(iterations):
+            edge_covariances(base, x, e, w, S)
+            best_rotations(S, R)
+            rotated_edges_rhs(base, R, e, w, b)
+            x[free] = lu.solve(b[free] - Lfc @ x[fixed])
+        return x
 
     @property
     def terms(self):

@@ -13,7 +13,7 @@ VOLUMETRIC = {"log": 0, "quadratic": 1}
 
 #: Singular values are clamped here before stress and stiffness are evaluated (Teran et al. 2005
 #: used 0.1 for their face); below it the energy is continued to first order.
-DEFAULT_CLAMP = 0.1
+DEFAULT_CLAMP = 0.01
 
 
 @dataclass(frozen=True)
