@@ -312,7 +312,18 @@ def repair_surface(surface: Surface, close: bool = True) -> Surface:
     if left < n_holes:
         repairs.append(f"closed {n_holes - left} of {n_holes} holes (trimesh fill_holes)")
     if left:
-        V, F, note = _meshfix(V, F)
+        Vm, Fm, note = _meshfix(V, F)
+        if not is_closed_manifold(Fm):
+            # trimesh's fans can leave edges shared by three faces, which MeshFix cannot mend: MeshFix
+            # on the surface as read, without debris pieces of fewer than MIN_FACES faces (Badin's
+            # upper teeth: 7 stray triangles; closed this way, 28,140 faces)
+            Vr, Fr, dropped = _without_debris(surface.vertices, surface.faces)
+            Vr, Fr, note_r = _meshfix(Vr, Fr)
+            if is_closed_manifold(Fr):
+                Vm, Fm = Vr, Fr
+                note = note_r + " on the surface as read" + (f", {dropped} stray faces left out" if dropped else "")
+                repairs = [r for r in repairs if "trimesh fill_holes" not in r]
+        V, F = Vm, Fm
         repairs.append(note)
     F, notes = _orient(V, F)
     repairs += [n for n in notes if not n.startswith("reversed")]
@@ -320,6 +331,16 @@ def repair_surface(surface: Surface, close: bool = True) -> Surface:
     if not closed:
         repairs.append(f"still open after repair: {len(boundary_loops(F))} holes")
     return dataclasses.replace(surface, vertices=V, faces=F, closed=closed, repairs=tuple(repairs))
+
+
+def _without_debris(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(V, F, dropped)``: the surface without its connected pieces of fewer than ``MIN_FACES``
+    faces (stray triangles of a scan), unused vertices removed."""
+    comp = face_components(F)
+    sizes = np.bincount(comp)
+    keep = sizes[comp] >= MIN_FACES
+    used, Fk = np.unique(F[keep], return_inverse=True)
+    return V[used], Fk.reshape(-1, 3), int((~keep).sum())
 
 
 def _meshfix(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:

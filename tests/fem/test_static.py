@@ -117,7 +117,10 @@ def test_ten_percent_inverted_elements_recover():
     x0[moved] += rng.normal(size=(12, 3)) * 3.5
     frac = inverted_count(rest, x0) / len(T)
     assert frac >= 0.1
-    x, rep = solve_static(X, T, MAT, boundary, X[boundary], x0=x0, options=NewtonOptions(rtol=1e-10))
+    # 62 Newton steps at the 0.01 clamp (20 at Teran et al.'s 0.1): a tet crushed through inversion
+    # pushes back harder but the continued energy has no curvature there (docs/physics.md)
+    x, rep = solve_static(X, T, MAT, boundary, X[boundary], x0=x0,
+                          options=NewtonOptions(rtol=1e-10, max_iterations=100))
     assert rep.converged
     assert inverted_count(rest, x) == 0
     np.testing.assert_allclose(x, X, atol=1e-6)

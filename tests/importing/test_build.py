@@ -159,6 +159,8 @@ def test_imported_model_describes_itself(volume_model, capsys):
     # the forehead markers the mask lacks are reported, not silently dropped
     dropped = rep["template"]["markers"]["dropped"]
     assert "head_forehead_C" in dropped and all("away" in why or "edge" in why for why in dropped.values())
+    # both dentition scans are colliders (the upper one closes only as read: test_meshes.py)
+    assert {c.name for c in model.colliders} >= {"upper_teeth", "lower_teeth"}, rep["colliders"]
     # model info works and says where the model came from
     assert main(["model", "info", str(volume_model), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
