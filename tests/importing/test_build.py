@@ -290,6 +290,7 @@ def test_output_frame_input_writes_the_bones_back_onto_their_files(volume_model,
         assert cKDTree(original).query(got)[0].max() < 1e-9   # m: 1e-6 mm
 
 
+@pytest.mark.timeout(1200)   # 130 s before the clamp continuation; timed out at 300 s after it (session 20)
 def test_jaw_rig_fitted_to_the_imported_tmj_solves_a_capture(volume_model, tmp_path):
     """Issue 16, item 6, for the jaw rigs: ``facesim jaw fit-model`` fits a Posselt rig to motion
     generated for the imported face's own TMJ (found from its landmarks) and writes it beside the
