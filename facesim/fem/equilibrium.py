@@ -198,8 +198,7 @@ class FaceSimulator:
         free, fixed, lu, Lfc = self._harmonic()
         out = target.copy()
         out[free] = base[free] + lu.solve(-(Lfc @ d))
-        rel = self.model.tet_volumes(out)[self.elems] / self.rest.V0[self.elems]
-        if rel.min() < PREDICT_MIN_J:
+        if self.element_quality(out)[1] < PREDICT_MIN_J:
             out = self._as_rigid_as_possible(base, out, PREDICT_ARAP_ITERATIONS)
         return out
 
@@ -209,7 +208,7 @@ class FaceSimulator:
         (the mesh's edge graph, weights 1/rest length, the prefactorised Laplacian of
         :meth:`_harmonic`): harmonic interpolation of a large bone motion shears the flesh next to
         the bone, rotated edges follow it -- on the Badin face opened 0.3 rad from rest, 30
-        inverted tets in the harmonic start, 17 after these steps, and Newton 62 -> 23 iterations
+        inverted tets in the harmonic start, 17 after these steps, and Newton 62 -> 19 iterations
         with the 0.01 clamp (benchmarks/RESULTS.md, session 20)."""
         from facesim._kernels.arap import best_rotations, edge_covariances, rotated_edges_rhs
 
