@@ -2,7 +2,7 @@
 meshes in one run, printed as a table with the ratio of their times and the displacements' agreement.
 
     NUMBA_NUM_THREADS=2 python benchmarks/bench_cube_sfepy.py [--cells 20,29] [--venv DIR]
-        [--facesim amg,pardiso] [--sfepy amg,direct]
+        [--facesim amg,pardiso] [--sfepy amg-rbm,amg]
 
 The cube (10 mm, ``cells`` Kuhn-split cubes per side: 20 -> 48,000 tets, 29 -> 146,334 tets) has
 its bottom face clamped and its top face moved up 2 mm with its x and y held (both faces fully
@@ -12,15 +12,19 @@ total-Lagrangian ``dw_tl_he_neohook`` (mu = 2 c10) + ``dw_tl_he_mooney_rivlin`` 
 ``dw_tl_bulk_penalty`` (K), one-point quadrature (linear tets).
 
 SfePy is installed into its own virtualenv (``--venv``, made on first use with
-``pip install sfepy pyamg``); it is never a dependency of facesim. Its configurations: ``amg``
-(Newton, pyamg smoothed aggregation with CG as accelerator, rebuilt every Newton step as SfePy
-does for a changed matrix, 4 load steps) and ``direct`` (the same with SfePy's default direct
-solver). facesim's: ``solve_static`` in one load step with its line search, with the linear
-solver named (``amg``, ``pardiso``, ``direct``). Each run is its own process; times are the solve
-alone (mesh and problem set-up excluded, numba compiled by a warm-up solve), memory is the
-process's peak RSS. Both solve to a force residual of 1e-8 of the first residual, so the
-displacements agree to the discretisation's round-off (column "max |du| / max |u|" against the
-first SfePy run). Never asserted; record the table in benchmarks/RESULTS.md.
+``pip install sfepy pyamg``); it is never a dependency of facesim. It runs Newton in 8 load steps
+(with 4, its Newton steps invert tets and its line search crawls at 1e-3 of a step: 2.7x the
+time on a 10K-tet cube), with one of these linear solvers: ``amg-rbm`` (pyamg smoothed
+aggregation with CG as accelerator and the six rigid-body modes as near-null space, as
+facesim's AMG has; rebuilt every Newton step, as SfePy does for a changed matrix), ``amg`` (the
+same with pyamg's default near-null space) or ``direct`` (SfePy's default direct solver, SuperLU
+here: 263 s on the 48K cube). facesim runs ``solve_static`` in one load step with its
+inversion-safe line search and the linear solver named (``amg``, ``pardiso``, ``direct``).
+
+Each run is its own process. Times are the solve alone (mesh and problem set-up excluded, numba
+compiled by a warm-up solve); memory is the process's peak RSS. Both solve to a force residual
+of 1e-8 of the first one (SfePy: of each load step's first one), so the displacements agree to
+round-off (column "max abs du / max abs u", against the first SfePy run). Never asserted; record the table in benchmarks/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -41,7 +45,8 @@ import numpy as np
 SIZE = 10.0           # mm
 STRETCH = 1.2
 C10, C01, K = 0.5, 0.1, 10.0   # MPa
-LOAD_STEPS = 4
+LOAD_STEPS = 8       # SfePy's: with 4 its Newton steps invert tets ("warp violation") and crawl at
+                     # 1e-3 of a step (83 iterations on the 10K-tet cube, 32 with 8 steps, 2.7x the time)
 TOLERANCE = 1e-8      # force residual relative to the first one
 
 
@@ -81,8 +86,22 @@ def run_facesim(mesh: Path, out: Path, solver: str) -> dict:
             "parts": {k: round(v, 2) for k, v in rep.seconds.items()}}
 
 
+def rigid_modes(X: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """``(3 n_free, 6)`` rigid-body modes of the free nodes, in SfePy's dof order (EBC dofs removed,
+    node-major): SfePy's system holds only the nodes with no prescribed component here."""
+    free = np.setdiff1d(np.arange(len(X)), fixed)
+    p = X[free] - X[free].mean(axis=0)
+    B = np.zeros((len(free), 3, 6))
+    for k in range(3):
+        B[:, k, k] = 1.0
+    B[:, 1, 3], B[:, 2, 3] = -p[:, 2], p[:, 1]
+    B[:, 0, 4], B[:, 2, 4] = p[:, 2], -p[:, 0]
+    B[:, 0, 5], B[:, 1, 5] = -p[:, 1], p[:, 0]
+    return B.reshape(-1, 6)
+
+
 def run_sfepy(mesh: Path, out: Path, solver: str) -> dict:
-    from sfepy.base.base import IndexedStruct
+    from sfepy.base.base import IndexedStruct, output
     from sfepy.discrete import Equation, Equations, FieldVariable, Function, Integral, Material, Problem
     from sfepy.discrete.conditions import Conditions, EssentialBC
     from sfepy.discrete.fem import FEDomain, Field, Mesh
@@ -91,6 +110,7 @@ def run_sfepy(mesh: Path, out: Path, solver: str) -> dict:
     from sfepy.solvers.ts_solvers import SimpleTimeSteppingSolver
     from sfepy.terms import Term
 
+    output.set_output(quiet=True)
     d = np.load(mesh)
     X, tets = d["X"], d["tets"].astype(np.int32)
     m = Mesh.from_data("cube", X, None, [tets], [np.zeros(len(tets), np.int32)], ["3_4"])
@@ -114,8 +134,13 @@ def run_sfepy(mesh: Path, out: Path, solver: str) -> dict:
     ebcs = Conditions([EssentialBC("bottom", bottom, {"u.all": 0.0}),
                        EssentialBC("top_xy", top, {"u.[0,1]": 0.0}),
                        EssentialBC("top_z", top, {"u.2": Function("lift", lift)})])
-    ls = (PyAMGSolver({"accel": "cg", "eps_r": 1e-10, "i_max": 1000})
-          if solver == "amg" else ScipyDirect({}))
+    if solver == "direct":
+        ls = ScipyDirect({})
+    else:
+        conf = {"accel": "cg", "eps_r": 1e-8, "i_max": 1000}
+        if solver == "amg-rbm":   # the six rigid-body modes as near-null space, as facesim's AMG has
+            conf["method:B"] = rigid_modes(X, np.unique(np.concatenate([d["bottom"], d["top"]])))
+        ls = PyAMGSolver(conf)
     status = IndexedStruct()
     nls = Newton({"i_max": 50, "eps_a": 1e-30, "eps_r": TOLERANCE, "eps_mode": "or", "lin_red": None}, lin_solver=ls, status=status)
     pb = Problem("cube", equations=equations)
@@ -146,10 +171,10 @@ def ensure_venv(venv: Path) -> Path:
     return python
 
 
-def child(python: str, tool: str, solver: str, mesh: Path, out: Path) -> dict:
+def child(python: str, tool: str, solver: str, mesh: Path, out: Path, load_steps: int) -> dict:
     env = dict(os.environ)
     env.setdefault("OMP_NUM_THREADS", "2")
-    proc = subprocess.run([python, __file__, "--child", tool, solver, str(mesh), str(out)],
+    proc = subprocess.run([python, __file__, "--child", tool, solver, str(mesh), str(out), str(load_steps)],
                           capture_output=True, text=True, env=env)
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
@@ -162,11 +187,13 @@ def main() -> None:
     ap.add_argument("--cells", default="20,29", help="cubes per side, comma-separated (20: 48K tets, 29: 146K)")
     ap.add_argument("--venv", default=str(Path.home() / ".cache" / "facesim-bench" / "sfepy-venv"))
     ap.add_argument("--facesim", default="amg,pardiso", help="facesim linear solvers to run")
-    ap.add_argument("--sfepy", default="amg,direct", help="SfePy linear solvers to run ('' for none)")
-    ap.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
+    ap.add_argument("--sfepy", default="amg-rbm,amg", help="SfePy linear solvers to run ('' for none)")
+    ap.add_argument("--load-steps", type=int, default=LOAD_STEPS, help="SfePy's load steps")
+    ap.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        tool, solver, mesh, out = args.child
+        tool, solver, mesh, out, steps = args.child
+        globals()["LOAD_STEPS"] = int(steps)
         result = (run_facesim if tool == "facesim" else run_sfepy)(Path(mesh), Path(out), solver)
         print(json.dumps(result))
         return
@@ -174,8 +201,8 @@ def main() -> None:
     python = str(ensure_venv(Path(args.venv))) if sfepy_solvers else None
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, NUMBA_NUM_THREADS="
           f"{os.environ.get('NUMBA_NUM_THREADS', 'default')}; cube {SIZE:g} mm, stretch {STRETCH}, "
-          f"c10 {C10} c01 {C01} K {K} MPa; SfePy in {LOAD_STEPS} load steps, facesim in one")
-    print("| tets | dofs | tool | linear solver | Newton | s | peak MB | SfePy amg s / this s | max abs du / max abs u |")
+          f"c10 {C10} c01 {C01} K {K} MPa; SfePy in {args.load_steps} load steps, facesim in one")
+    print("| tets | dofs | tool | linear solver | Newton | s | peak MB | first SfePy s / this s | max abs du / max abs u |")
     print("|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for cells in (int(c) for c in args.cells.split(",")):
@@ -188,14 +215,14 @@ def main() -> None:
             reference, reference_s = None, None
             for tool, solver, exe in runs:
                 out = Path(tmp) / f"{tool}_{solver}_{cells}.npy"
-                r = child(exe, tool, solver, mesh, out)
+                r = child(exe, tool, solver, mesh, out, args.load_steps)
                 if "error" in r:
                     print(f"| {len(tets)} | {dofs} | {tool} | {solver} | failed: {r['error']} |||||")
                     continue
                 u = np.load(out)
                 if reference is None:
                     reference = u
-                if tool == "sfepy" and solver == "amg":
+                if tool == "sfepy" and reference_s is None:
                     reference_s = r["seconds"]
                 agree = np.abs(u - reference).max() / np.abs(reference).max()
                 ratio = f"{reference_s / r['seconds']:.1f}" if reference_s else "-"
