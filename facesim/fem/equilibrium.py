@@ -367,18 +367,19 @@ class FaceSimulator:
         s = np.linalg.svd(F, compute_uv=False)[:, -1]
         return float((s * np.sign(np.linalg.det(F))).min()) if len(s) else np.inf
 
-    def _newton(self, prob: Problem, options: NewtonOptions, scale: float, clamp_scale=None):
+    def _newton(self, prob: Problem, options: NewtonOptions, scale: float, clamp_scale=None, linear=None):
         """Newton on ``prob``, first at :data:`PATH_CLAMP` when the options' clamp is smaller
         (kept if no tet ends below it: the energies agree there), else again at the options' clamp
         from the same start (an imported face's wide opening: the first solve inverts tets)."""
+        linear = linear or self.linear
         if self._path_elastic is None:
-            return newton(prob, options, scale, self.linear)
-        x, rep = newton(self._at_path_clamp(prob), options, scale, self.linear)
+            return newton(prob, options, scale, linear)
+        x, rep = newton(self._at_path_clamp(prob), options, scale, linear)
         if rep.converged and self._min_singular_value(x) >= PATH_CLAMP:
             return x, rep
         # the crushed tets that made the path invert also set this solve's force scale (the
         # tolerances all of benchmarks/RESULTS.md session 20 was measured with)
-        x, rep2 = newton(prob, options, max(scale, clamp_scale()) if clamp_scale else scale, self.linear)
+        x, rep2 = newton(prob, options, max(scale, clamp_scale()) if clamp_scale else scale, linear)
         rep2.iterations += rep.iterations
         rep2.residuals = list(rep.residuals) + list(rep2.residuals)
         rep2.linear_iterations = list(rep.linear_iterations) + list(rep2.linear_iterations)
@@ -416,9 +417,11 @@ class FaceSimulator:
         return self.contact_terms(controls, frame, transforms) + tuple(extra_terms)
 
     def equilibrium(self, controls: Controls, x0=None, newton_options: NewtonOptions | None = None,
-                    extra_terms=(), frame: float = 0.0) -> Equilibrium:
+                    extra_terms=(), frame: float = 0.0, linear=None) -> Equilibrium:
         """Equilibrium positions for ``controls``, warm-started from ``x0 (n, 3)`` if given, with the
-        set-up's contact posed at ``frame`` (scripted colliders) plus ``extra_terms``.
+        set-up's contact posed at ``frame`` (scripted colliders) plus ``extra_terms``. ``linear``:
+        the Newton steps' linear solver (default: the simulator's own, ``newton_options.linear_solver``),
+        e.g. a :class:`~facesim.fem.linear.FactorPCG` on a nearby factorised tangent.
 
         A solve that does not converge is returned with ``converged`` False (not raised), also one
         out of time (``newton_options.max_seconds`` or the enclosing :func:`facesim.budget.time_budget`:
@@ -439,15 +442,15 @@ class FaceSimulator:
             scale = self.force_scale(controls, extra_terms, start)
             prob = self.problem(controls, start, extra_terms)
             x, rep = self._newton(prob, options, scale,
-                                  lambda: self.force_scale(controls, extra_terms, start, path=False))
+                                  lambda: self.force_scale(controls, extra_terms, start, path=False), linear)
             if not rep.converged and self.options.substeps > 1 and rep.stop_reason != TIME_LIMIT:
-                x, rep = self._substepped(controls, x0, options, scale, rep, user_terms, frame)
+                x, rep = self._substepped(controls, x0, options, scale, rep, user_terms, frame, linear)
         if not np.isfinite(x).all():
             rep.converged, rep.stop_reason = False, "non_finite"
         rep.seconds["total"] = time.perf_counter() - t0
         return Equilibrium(x=x, controls=controls, report=rep)
 
-    def _substepped(self, controls, x0, options, scale, failed, extra_terms=(), frame: float = 0.0):
+    def _substepped(self, controls, x0, options, scale, failed, extra_terms=(), frame: float = 0.0, linear=None):
         """Retry a failed solve as a path of equilibria from the start state to ``controls``; the
         bone-carried contact (teeth, colliders on a bone) is posed with each substep's bones."""
         m = self.model
@@ -467,7 +470,7 @@ class FaceSimulator:
             terms = self.solve_terms(controls, frame, extra_terms, Hs)
             prob = Problem(self.terms + terms, self.system,
                            self.attached_positions(controls, self.predict(controls, x, Hs), Hs), a)
-            x, rep = self._newton(prob, options, scale)
+            x, rep = self._newton(prob, options, scale, linear=linear)
             iterations += rep.iterations
             residuals += rep.residuals
             if rep.stop_reason == TIME_LIMIT:

@@ -263,6 +263,49 @@ class DirectSolver:
         return self.solve(A, np.asarray(b, dtype=np.float64), B, rtol)
 
 
+class FactorPCG:
+    """CG preconditioned by the factorisation of a nearby matrix, refactorised where it stops being near.
+
+    Made for the Newton solves that follow a failed chord solve (:func:`~facesim.inverse.jacobian.near_equilibrium`):
+    the tangent factorised for the frame's Jacobian (``factor``, anything with ``.solve(b)``) first
+    preconditions CG; when CG needs more than ``maxiter`` iterations the matrix of that Newton step
+    is factorised (PARDISO when installed, else SuperLU), solved directly, and its factor
+    preconditions the steps after it. A Newton step then costs an assembly and a few triangular
+    solves, or one factorisation -- not an AMG set-up and tens of V-cycles (benchmarks/RESULTS.md,
+    session 22). The factor it makes is its own: ``factor`` is never changed."""
+
+    def __init__(self, factor=None, maxiter: int = 25, backend: str | None = None):
+        self.factor = factor
+        self.maxiter = int(maxiter)
+        self.backend = backend or ("pardiso" if pardiso_available() else "superlu")
+        self.stats = LinearStats()
+
+    def solve(self, A, b: np.ndarray, B=None, rtol: float = 1e-8) -> np.ndarray:
+        t = time.perf_counter()
+        it = [0]
+        if self.factor is not None:
+            def count(_):
+                it[0] += 1
+
+            M = spla.LinearOperator(A.shape, matvec=self.factor.solve, dtype=np.float64)
+            with single_blas_thread():
+                x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=self.maxiter, M=M, callback=count)
+            if info == 0 and np.isfinite(x).all():
+                self.stats.solves += 1
+                self.stats.iterations.append(it[0])
+                self.stats.solve_seconds += time.perf_counter() - t
+                return x
+        self.stats.solve_seconds += time.perf_counter() - t
+        self.factor = DirectSolver(self.stats, self.backend).factorize(A)   # counted as a set-up
+        t = time.perf_counter()
+        with single_blas_thread():
+            x = self.factor.solve(b)
+        self.stats.solves += 1
+        self.stats.iterations.append(it[0] + 1)
+        self.stats.solve_seconds += time.perf_counter() - t
+        return x
+
+
 def make_linear_solver(kind: str):
     if kind == "amg":
         return AMGSolver()

@@ -43,7 +43,9 @@ line search ~10 % of the time):
   ``step_tolerance``, the frame has converged: a tracked frame costs one step and one equilibrium.
 * **Chord equilibria.** Trial equilibria first try chord iterations against the factorised tangent
   the direct Jacobian kept (:func:`~facesim.inverse.jacobian.near_equilibrium`: one gradient and
-  a triangular solve per iteration, no assembly), falling back to Newton.
+  a triangular solve per iteration, no assembly), falling back to Newton whose steps are solved by
+  CG preconditioned with the same factor, refactorised where it no longer helps
+  (:class:`~facesim.fem.linear.FactorPCG`; not the simulator's AMG: 14 % off the demo clip).
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ import numpy as np
 from facesim.budget import TIME_LIMIT, check_seconds, expired, time_budget
 from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
-from facesim.fem.linear import single_blas_thread
+from facesim.fem.linear import FactorPCG, single_blas_thread
 from facesim.inverse.head_frame import HeadFrame
 from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, equilibrium_jacobian, near_equilibrium
 
@@ -391,7 +393,10 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 return xc
             warm = xc
         try:
-            eq = sim.equilibrium(ctrl, x0=warm, extra_terms=extra_terms, frame=frame)
+            # after the chord solve: Newton whose steps are preconditioned by the same factor, then
+            # by a factorisation of their own where it is no longer near (FactorPCG)
+            linear = FactorPCG(tangent) if tangent is not None and options.chord else None
+            eq = sim.equilibrium(ctrl, x0=warm, extra_terms=extra_terms, frame=frame, linear=linear)
         except SolverError as exc:   # a failed trial: the line search treats it as an infinite objective
             rep.equilibria += 1
             rep.error = " ".join(str(exc).split())

@@ -73,3 +73,34 @@ def test_pardiso_finds_mkl_once_per_process(monkeypatch):
     assert "mkl_rt" in os.environ.get("PYPARDISO_MKL_RT", "")
     x = PardisoFactor(A).solve(b)
     np.testing.assert_allclose(A @ x, b, atol=1e-10)
+
+
+@pytest.mark.parametrize("backend", ["superlu", "pardiso"])
+def test_factor_pcg_uses_a_near_factor_and_refactorises_a_far_one(backend):
+    from facesim.fem.linear import FactorPCG, factorize, pardiso_available
+
+    if backend == "pardiso" and not pardiso_available():
+        pytest.skip("pypardiso is not installed")
+    rng = np.random.default_rng(3)
+    A = laplacian_3d(8)
+    b = rng.normal(size=A.shape[0])
+    near = (A + 0.01 * sp.diags(rng.uniform(0, 1, A.shape[0]))).tocsr()   # a nearby matrix's factor
+    solver = FactorPCG(factorize(near), maxiter=25, backend=backend)
+    x = solver.solve(A, b, rtol=1e-10)
+    assert np.linalg.norm(A @ x - b) <= 1e-10 * np.linalg.norm(b)
+    assert solver.stats.setups == 0 and 1 <= solver.stats.iterations[-1] <= 6   # CG, no factorisation
+    # far from the factor (the coupling along x 1000 times stiffer): one factorisation of this
+    # matrix, an exact solve, and that factor kept for the next solves
+    n = 8
+    one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    far = (A + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tocsr()
+    x = solver.solve(far, b, rtol=1e-10)
+    np.testing.assert_allclose(far @ x, b, atol=1e-8 * np.abs(b).max())
+    assert solver.stats.setups == 1 and solver.stats.iterations[-1] == 26   # 25 CG iterations, then direct
+    x = solver.solve(far, 2 * b, rtol=1e-10)
+    assert solver.stats.setups == 1 and solver.stats.iterations[-1] <= 2
+    np.testing.assert_allclose(far @ x, 2 * b, atol=1e-8 * np.abs(b).max())
+    # no factor to start with: the first solve factorises
+    fresh = FactorPCG(backend=backend)
+    np.testing.assert_allclose(A @ fresh.solve(A, b), b, atol=1e-9 * np.abs(b).max())
+    assert fresh.stats.setups == 1
