@@ -185,48 +185,140 @@ def pardiso_available() -> bool:
     return True
 
 
-def _new_pardiso_solver(pypardiso, mtype: int):
-    """A ``PyPardisoSolver``; the first one's MKL library path is kept in ``PYPARDISO_MKL_RT`` (this
-    process and its children), which pypardiso reads first: without it every solver searches the
-    whole ``sys.prefix`` tree for ``libmkl_rt`` again (0.45 s per factorisation on the test machine)."""
-    solver = pypardiso.PyPardisoSolver(mtype=mtype)
-    name = getattr(getattr(solver, "libmkl", None), "_name", None)
-    if name and "PYPARDISO_MKL_RT" not in os.environ:
-        os.environ["PYPARDISO_MKL_RT"] = str(name)
-    return solver
+_PARDISO = None   # MKL's pardiso and pardisoinit, typed; loaded once
 
 
-class PardisoFactor:
-    """MKL PARDISO factorisation of the symmetric matrix ``A`` (symmetric indefinite: the true
-    tangent need not be positive definite); ``.solve(b)`` takes ``(N,)`` or ``(N, k)``, like
-    SuperLU's. The factor lives in PARDISO's memory until this object is collected."""
+def _mkl_pardiso():
+    """MKL's ``pardiso`` and ``pardisoinit`` from the ``mkl_rt`` library pypardiso finds (the
+    ``facesim[pardiso]`` extra). facesim calls them itself: pypardiso passes double precision only,
+    and the single-precision factors below halve the cost of a triangular solve. The library's path
+    is kept in ``PYPARDISO_MKL_RT`` (this process and its children), which pypardiso reads first:
+    without it every lookup searches the whole ``sys.prefix`` tree again (0.45 s each)."""
+    global _PARDISO
+    if _PARDISO is None:
+        import ctypes
 
-    def __init__(self, A):
         try:
             import pypardiso
         except ImportError:
             raise FacesimError(NO_PARDISO) from None
-        self.A = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
-        self.A.sort_indices()
-        self.shape = self.A.shape
-        self._solver = _new_pardiso_solver(pypardiso, mtype=-2)
+        lib = pypardiso.PyPardisoSolver(mtype=-2).libmkl
+        ptr, i32 = ctypes.c_void_p, ctypes.POINTER(ctypes.c_int32)
+        fn = lib.pardiso
+        fn.restype = None
+        fn.argtypes = [ptr, i32, i32, i32, i32, i32, ptr, ptr, ptr, ptr, i32, ptr, i32, ptr, ptr, i32]
+        init = lib.pardisoinit
+        init.restype = None
+        init.argtypes = [ptr, i32, ptr]
+        _PARDISO = (fn, init, getattr(lib, "_name", None))
+    if _PARDISO[2] and "PYPARDISO_MKL_RT" not in os.environ:
+        os.environ["PYPARDISO_MKL_RT"] = str(_PARDISO[2])
+    return _PARDISO[:2]
+
+
+REFINE_RTOL = 1e-10   # relative residual a PARDISO solve refines to (the face: one step from ~1e-6)
+REFINE_STEPS = 6
+
+
+class PardisoFactor:
+    """MKL PARDISO factorisation of the symmetric matrix ``A`` (symmetric indefinite: the true
+    tangent need not be positive definite), in single precision by default.
+
+    ``solve(b)`` (``(N,)`` or ``(N, k)``, like SuperLU's) is accurate to double precision: a
+    single-precision solve, then iterative refinement against ``A`` in double to a relative
+    residual of ``REFINE_RTOL`` (the face's tangents: ~1e-6 after the first solve, ~1e-11 after one
+    refinement step; an ill-conditioned indefinite matrix takes more).
+    ``precondition(b)`` is the single-precision solve alone, for a preconditioner or a chord
+    iteration, where the outer iteration checks the residual in double anyway. On the coarse
+    face's tangent (14,766 unknowns): factorisation 58 ms against 79 ms in double, a solve
+    1.4 ms against 2.3 ms, half the factor's memory (benchmarks/RESULTS.md, session 22).
+    ``single=False``: a double-precision factor, whose ``solve`` is exact to round-off without
+    refinement (MKL's two refinement steps are skipped when no pivot was perturbed: they only
+    tripled a solve's cost). The factor lives in PARDISO's memory until this object is collected."""
+
+    def __init__(self, A, single: bool = True):
+        import ctypes
+
+        self._pardiso, init = _mkl_pardiso()
+        A = sp.csr_matrix(A, dtype=np.float64)
+        self.full = A   # for the refinement's residual
+        U = sp.triu(A, format="csr")
+        U.sum_duplicates()
+        U.sort_indices()
+        self.shape = A.shape
+        self.n = int(A.shape[0])
+        self.single = bool(single)
+        self.dtype = np.float32 if self.single else np.float64
+        self.data = U.data.astype(self.dtype)
+        self.indptr = U.indptr.astype(np.int32)
+        self.indices = U.indices.astype(np.int32)
+        self.pt = np.zeros(64, dtype=np.int64)
+        self.iparm = np.zeros(64, dtype=np.int32)
+        self._mtype = ctypes.c_int32(-2)
+        init(self.pt.ctypes.data, ctypes.byref(self._mtype), self.iparm.ctypes.data)
+        self.iparm[0] = 1     # the settings below, not all defaults
+        self.iparm[7] = 0     # no iterative refinement inside (done here, in double, when wanted)
+        self.iparm[17] = -1   # report the factor's nonzeros
+        self.iparm[27] = 1 if self.single else 0
+        self.iparm[34] = 1    # zero-based indices
+        self._perm = np.zeros(self.n, dtype=np.int32)
+        self._factored = False
         with _mkl_threads(_compute_threads()):   # the factorisation is worth its threads (1.75x on 2 cores)
-            self._solver.factorize(self.A)
-        if self._solver.get_iparm(14) == 0:
-            # no pivot was perturbed: the factors are exact to round-off and MKL's default two steps
-            # of iterative refinement only triple the cost of a solve (medium face: 0.054 -> 0.021 s)
-            self._solver.set_iparm(8, 0)
+            self._call(12, np.zeros((self.n, 1), dtype=self.dtype))
+        self._factored = True
+        self.perturbed = int(self.iparm[13])
+
+    @property
+    def factor_nonzeros(self) -> int:
+        return int(self.iparm[17])
+
+    def _call(self, phase: int, b: np.ndarray) -> np.ndarray:
+        import ctypes
+
+        x = np.zeros_like(b)
+        error = ctypes.c_int32(0)
+        one = ctypes.c_int32(1)
+        self._pardiso(self.pt.ctypes.data, ctypes.byref(one), ctypes.byref(one), ctypes.byref(self._mtype),
+                      ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(self.n)),
+                      self.data.ctypes.data, self.indptr.ctypes.data, self.indices.ctypes.data,
+                      self._perm.ctypes.data, ctypes.byref(ctypes.c_int32(1 if b.ndim == 1 else b.shape[1])),
+                      self.iparm.ctypes.data, ctypes.byref(ctypes.c_int32(0)), b.ctypes.data, x.ctypes.data,
+                      ctypes.byref(error))
+        if error.value != 0:
+            what = {-4: "zero pivot", -2: "not enough memory", -1: "inconsistent input"}.get(error.value, "")
+            raise SolverError(f"linear solve: PARDISO failed in phase {phase} (error {error.value}"
+                              f"{': ' + what if what else ''})")
+        return x
+
+    def precondition(self, b) -> np.ndarray:
+        """``A^-1 b`` to the factor's precision (single: relative residual ~1e-6)."""
+        b = np.asarray(b, dtype=np.float64)
+        rhs = np.asfortranarray(b, dtype=self.dtype) if b.ndim == 2 else np.ascontiguousarray(b, dtype=self.dtype)
+        with _mkl_threads(1):   # triangular solves: threads cost more than they give
+            x = self._call(33, rhs)
+        return np.ascontiguousarray(x, dtype=np.float64)
 
     def solve(self, b) -> np.ndarray:
+        """``A^-1 b`` to double precision (one refinement step after a single-precision solve)."""
         b = np.asarray(b, dtype=np.float64)
-        with _mkl_threads(1):   # triangular solves: threads cost more than they give
-            return self._solver.solve(self.A, b)
+        x = self.precondition(b)
+        if not (self.single or self.perturbed):   # a perturbed pivot: the double factor is not exact either
+            return x
+        size = np.maximum(np.linalg.norm(b, axis=0), 1e-300)
+        last = np.inf
+        for _ in range(REFINE_STEPS):
+            r = b - self.full @ x
+            worst = float((np.linalg.norm(r, axis=0) / size).max())
+            if worst <= REFINE_RTOL or worst >= 0.5 * last:   # there, or no longer converging
+                break
+            x += self.precondition(r)
+            last = worst
+        return x
 
     def __del__(self):
-        solver = getattr(self, "_solver", None)
-        if solver is not None:
+        if getattr(self, "_factored", False):
             try:
-                solver.free_memory(everything=True)
+                self._call(-1, np.zeros(1, dtype=self.dtype))
             except Exception:   # interpreter shutdown: nothing left to free
                 pass
 
@@ -263,6 +355,12 @@ class DirectSolver:
         return self.solve(A, np.asarray(b, dtype=np.float64), B, rtol)
 
 
+def preconditioner(factor):
+    """The cheapest application of ``factor``'s inverse: a :class:`PardisoFactor`'s solve at its
+    own precision, else ``factor.solve`` (SuperLU's, exact)."""
+    return getattr(factor, "precondition", factor.solve)
+
+
 class FactorPCG:
     """CG preconditioned by the factorisation of a nearby matrix, refactorised where it stops being near.
 
@@ -287,7 +385,7 @@ class FactorPCG:
             def count(_):
                 it[0] += 1
 
-            M = spla.LinearOperator(A.shape, matvec=self.factor.solve, dtype=np.float64)
+            M = spla.LinearOperator(A.shape, matvec=preconditioner(self.factor), dtype=np.float64)
             with single_blas_thread():
                 x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=self.maxiter, M=M, callback=count)
             if info == 0 and np.isfinite(x).all():

@@ -34,7 +34,7 @@ import scipy.sparse as sp
 
 from facesim.controls import Controls
 from facesim.errors import FacesimError
-from facesim.fem.linear import make_linear_solver, pardiso_available, single_blas_thread
+from facesim.fem.linear import make_linear_solver, pardiso_available, preconditioner, single_blas_thread
 from facesim.fem.newton import Problem
 from facesim.model import FaceModel
 
@@ -362,7 +362,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         u = prob.x_fixed[system.active].ravel().copy()
         x = best = prob.x_fixed
         previous, chord = np.inf, True
-        M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=tangent.solve, dtype=np.float64)
+        M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=preconditioner(tangent), dtype=np.float64)
         cg_iterations = [0]
 
         def count(_):
@@ -390,7 +390,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
                 # stay with chord iterations while a few more of them at this rate would converge
                 chord = chord and rate <= chord_rate and res * rate ** CHORD_LOOKAHEAD <= tol
             if chord:
-                du = tangent.solve(-g)
+                du = preconditioner(tangent)(-g)   # single precision will do: g is checked in double
                 solves += 1
             else:
                 before = cg_iterations[0]
