@@ -64,6 +64,19 @@ class LinearStats:
     solve_seconds: float = 0.0
 
 
+def counted_cg(A, b, rtol: float, maxiter: int, M) -> tuple[np.ndarray, int, int]:
+    """CG on ``A x = b`` preconditioned by ``M`` to relative residual ``rtol``, BLAS on one thread;
+    returns ``(x, info, iterations)`` (``info`` as scipy's: 0 converged)."""
+    it = [0]
+
+    def count(_):
+        it[0] += 1
+
+    with single_blas_thread():
+        x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=maxiter, M=M, callback=count)
+    return x, info, it[0]
+
+
 class AMGSolver:
     """CG preconditioned by a reusable pyamg smoothed-aggregation hierarchy."""
 
@@ -92,15 +105,7 @@ class AMGSolver:
         self.stats.setup_seconds += time.perf_counter() - t
 
     def _cg(self, A, b, rtol):
-        it = [0]
-
-        def count(_):
-            it[0] += 1
-
-        M = self.ml.aspreconditioner(cycle="V")
-        with single_blas_thread():
-            x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=self.maxiter, M=M, callback=count)
-        return x, info, it[0]
+        return counted_cg(A, b, rtol, self.maxiter, self.ml.aspreconditioner(cycle="V"))
 
     def solve(self, A, b: np.ndarray, B: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
         """Solve ``A x = b`` to relative residual ``rtol``; reuse or rebuild the hierarchy."""
@@ -299,7 +304,8 @@ class PardisoFactor:
         return np.ascontiguousarray(x, dtype=np.float64)
 
     def solve(self, b) -> np.ndarray:
-        """``A^-1 b`` to double precision (one refinement step after a single-precision solve)."""
+        """``A^-1 b`` to double precision: refined until the relative residual is ``REFINE_RTOL``
+        (or stops halving) after a single-precision solve or a perturbed pivot."""
         b = np.asarray(b, dtype=np.float64)
         x = self.precondition(b)
         if not (self.single or self.perturbed):   # a perturbed pivot: the double factor is not exact either
@@ -380,26 +386,19 @@ class FactorPCG:
 
     def solve(self, A, b: np.ndarray, B=None, rtol: float = 1e-8) -> np.ndarray:
         t = time.perf_counter()
-        it = [0]
+        x, info, its = None, 1, 0
         if self.factor is not None:
-            def count(_):
-                it[0] += 1
-
             M = spla.LinearOperator(A.shape, matvec=preconditioner(self.factor), dtype=np.float64)
+            x, info, its = counted_cg(A, b, rtol, self.maxiter, M)
+        if info != 0 or not np.isfinite(x).all():   # no factor, or too far from it: a factor of A
+            self.stats.solve_seconds += time.perf_counter() - t
+            self.factor = DirectSolver(self.stats, self.backend).factorize(A)   # counted as a set-up
+            t = time.perf_counter()
             with single_blas_thread():
-                x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=self.maxiter, M=M, callback=count)
-            if info == 0 and np.isfinite(x).all():
-                self.stats.solves += 1
-                self.stats.iterations.append(it[0])
-                self.stats.solve_seconds += time.perf_counter() - t
-                return x
-        self.stats.solve_seconds += time.perf_counter() - t
-        self.factor = DirectSolver(self.stats, self.backend).factorize(A)   # counted as a set-up
-        t = time.perf_counter()
-        with single_blas_thread():
-            x = self.factor.solve(b)
+                x = self.factor.solve(b)
+            its += 1
         self.stats.solves += 1
-        self.stats.iterations.append(it[0] + 1)
+        self.stats.iterations.append(its)
         self.stats.solve_seconds += time.perf_counter() - t
         return x
 

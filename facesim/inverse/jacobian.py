@@ -34,7 +34,7 @@ import scipy.sparse as sp
 
 from facesim.controls import Controls
 from facesim.errors import FacesimError
-from facesim.fem.linear import make_linear_solver, pardiso_available, preconditioner, single_blas_thread
+from facesim.fem.linear import counted_cg, make_linear_solver, pardiso_available, preconditioner, single_blas_thread
 from facesim.fem.newton import Problem
 from facesim.model import FaceModel
 
@@ -362,12 +362,8 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         u = prob.x_fixed[system.active].ravel().copy()
         x = best = prob.x_fixed
         previous, chord = np.inf, True
-        M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=preconditioner(tangent), dtype=np.float64)
-        cg_iterations = [0]
-
-        def count(_):
-            cg_iterations[0] += 1
-
+        inverse = preconditioner(tangent)   # single precision will do: g is checked in double
+        M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=inverse, dtype=np.float64)
         best_u = u.copy()
         retried = False
         for it in range(max_iterations + 1):
@@ -390,13 +386,11 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
                 # stay with chord iterations while a few more of them at this rate would converge
                 chord = chord and rate <= chord_rate and res * rate ** CHORD_LOOKAHEAD <= tol
             if chord:
-                du = preconditioner(tangent)(-g)   # single precision will do: g is checked in double
+                du = inverse(-g)
                 solves += 1
             else:
-                before = cg_iterations[0]
-                du, info = spla.cg(prob.hessian(x, project=False), -g, rtol=CHORD_NEWTON_RTOL, atol=0.0,
-                                   maxiter=50, M=M, callback=count)
-                solves += cg_iterations[0] - before
+                du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL, 50, M)
+                solves += its
                 if info != 0:
                     return best, it, solves, False
             du[~system.free_dof] = 0.0
