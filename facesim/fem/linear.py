@@ -225,9 +225,73 @@ REFINE_RTOL = 1e-10   # relative residual a PARDISO solve refines to (the face: 
 REFINE_STEPS = 6
 
 
+class _PardisoHandle:
+    """One PARDISO instance (its ``pt``): ``factorize`` runs the ordering, the symbolic and the
+    numerical factorisation (phase 12) of one matrix of ``mtype``; ``call`` any later phase.
+    Freed (phase -1) when collected. (Sharing one analysis among several factors of the same
+    pattern, PARDISO's ``maxfct``, was tried: after a failed Cholesky in one of its slots MKL
+    crashed in the next factorisation, so each factor has its own.)"""
+
+    def __init__(self, indptr, indices, mtype: int, single: bool):
+        import ctypes
+
+        self._pardiso, init = _mkl_pardiso()
+        self.n = len(indptr) - 1
+        self.indptr, self.indices = indptr, indices
+        self.mtype = int(mtype)
+        self.dtype = np.float32 if single else np.float64
+        self.pt = np.zeros(64, dtype=np.int64)
+        self.iparm = np.zeros(64, dtype=np.int32)
+        init(self.pt.ctypes.data, ctypes.byref(ctypes.c_int32(self.mtype)), self.iparm.ctypes.data)
+        self.iparm[0] = 1     # the settings below, not all defaults
+        self.iparm[7] = 0     # no iterative refinement inside (done by PardisoFactor, in double, when wanted)
+        self.iparm[17] = -1   # report the factor's nonzeros
+        self.iparm[27] = 1 if single else 0
+        self.iparm[34] = 1    # zero-based indices
+        self.perm = np.zeros(self.n, dtype=np.int32)
+        self._live = False
+
+    def factorize(self, data) -> int:
+        """Phase 12 of ``data`` (the upper triangle's values); PARDISO's error code (0: done)."""
+        self._live = True   # from here on phase -1 frees what the phases allocated
+        with _mkl_threads(_compute_threads()):   # the factorisation is worth its threads (1.75x on 2 cores)
+            return self.call(12, data, np.zeros((self.n, 1), dtype=self.dtype), check=False)[1]
+
+    def call(self, phase: int, data, b, check: bool = True):
+        """PARDISO's ``phase``; returns ``(x, error)`` (raises on an error when ``check``)."""
+        import ctypes
+
+        x = np.zeros_like(b)
+        error = ctypes.c_int32(0)
+        one = ctypes.c_int32(1)
+        self._pardiso(self.pt.ctypes.data, ctypes.byref(one), ctypes.byref(one), ctypes.byref(ctypes.c_int32(self.mtype)),
+                      ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(self.n)),
+                      data.ctypes.data, self.indptr.ctypes.data, self.indices.ctypes.data,
+                      self.perm.ctypes.data, ctypes.byref(ctypes.c_int32(1 if b.ndim == 1 else b.shape[1])),
+                      self.iparm.ctypes.data, ctypes.byref(ctypes.c_int32(0)), b.ctypes.data, x.ctypes.data,
+                      ctypes.byref(error))
+        if check and error.value != 0:
+            what = {-4: "zero pivot", -2: "not enough memory", -1: "inconsistent input"}.get(error.value, "")
+            raise SolverError(f"linear solve: PARDISO failed in phase {phase} (error {error.value}"
+                              f"{': ' + what if what else ''})")
+        return x, error.value
+
+    def __del__(self):
+        if getattr(self, "_live", False):
+            try:
+                self.call(-1, np.zeros(1, dtype=self.dtype), np.zeros(1, dtype=self.dtype), check=False)
+            except Exception:   # interpreter shutdown: nothing left to free
+                pass
+
+
 class PardisoFactor:
-    """MKL PARDISO factorisation of the symmetric matrix ``A`` (symmetric indefinite: the true
-    tangent need not be positive definite), in single precision by default.
+    """MKL PARDISO factorisation of the symmetric matrix ``A``, in single precision by default:
+    Cholesky (PARDISO's ``mtype`` 2) first -- the projected Newton tangents and the true tangent
+    at a stable equilibrium are positive definite -- and, where a pivot is not positive (an
+    indefinite true tangent), the symmetric indefinite LDL^T with Bunch-Kaufman pivots (``mtype``
+    -2); ``cholesky`` says which. On the paper-size face's tangent Cholesky factorises in 6.9 s
+    against 8.7 s and solves in 0.14 s against 0.17 s (benchmarks/RESULTS.md, session 23); a failed
+    attempt costs up to one more factorisation.
 
     ``solve(b)`` (``(N,)`` or ``(N, k)``, like SuperLU's) is accurate to double precision: a
     single-precision solve, then iterative refinement against ``A`` in double to a relative
@@ -239,68 +303,64 @@ class PardisoFactor:
     1.4 ms against 2.3 ms, half the factor's memory (benchmarks/RESULTS.md, session 22).
     ``single=False``: a double-precision factor, whose ``solve`` is exact to round-off without
     refinement (MKL's two refinement steps are skipped when no pivot was perturbed: they only
-    tripled a solve's cost). The factor lives in PARDISO's memory until this object is collected."""
+    tripled a solve's cost). ``spd=False`` skips the Cholesky attempt (a matrix known to be
+    indefinite), ``spd=True`` raises :class:`SolverError` rather than fall back. The factor lives
+    in PARDISO's memory until this object is collected."""
 
-    def __init__(self, A, single: bool = True):
-        import ctypes
-
-        self._pardiso, init = _mkl_pardiso()
+    def __init__(self, A, single: bool = True, spd: bool | None = None):
         A = sp.csr_matrix(A, dtype=np.float64)
         self.full = A   # for the refinement's residual
         U = sp.triu(A, format="csr")
         U.sum_duplicates()
         U.sort_indices()
+        n = int(A.shape[0])
+        if not (np.diff(U.indptr) > 0).all() or not (U.indices[U.indptr[:-1]] == np.arange(n)).all():
+            # PARDISO wants every diagonal entry stored, zeros too (a missing one crashes its
+            # analysis): the diagonal's pattern added (COO to CSR keeps explicit zeros)
+            U = U.tocoo()
+            U = sp.csr_matrix((np.r_[U.data, np.zeros(n)], (np.r_[U.row, np.arange(n)], np.r_[U.col, np.arange(n)])),
+                              shape=A.shape)
+            U.sum_duplicates()
+            U.sort_indices()
         self.shape = A.shape
-        self.n = int(A.shape[0])
+        self.n = n
         self.single = bool(single)
         self.dtype = np.float32 if self.single else np.float64
         self.data = U.data.astype(self.dtype)
-        self.indptr = U.indptr.astype(np.int32)
-        self.indices = U.indices.astype(np.int32)
-        self.pt = np.zeros(64, dtype=np.int64)
-        self.iparm = np.zeros(64, dtype=np.int32)
-        self._mtype = ctypes.c_int32(-2)
-        init(self.pt.ctypes.data, ctypes.byref(self._mtype), self.iparm.ctypes.data)
-        self.iparm[0] = 1     # the settings below, not all defaults
-        self.iparm[7] = 0     # no iterative refinement inside (done here, in double, when wanted)
-        self.iparm[17] = -1   # report the factor's nonzeros
-        self.iparm[27] = 1 if self.single else 0
-        self.iparm[34] = 1    # zero-based indices
-        self._perm = np.zeros(self.n, dtype=np.int32)
-        self._factored = False
-        with _mkl_threads(_compute_threads()):   # the factorisation is worth its threads (1.75x on 2 cores)
-            self._call(12, np.zeros((self.n, 1), dtype=self.dtype))
-        self._factored = True
-        self.perturbed = int(self.iparm[13])
+        indptr, indices = U.indptr.astype(np.int32), U.indices.astype(np.int32)
+        for mtype in ((2, -2) if spd is None else (2,) if spd else (-2,)):
+            handle = _PardisoHandle(indptr, indices, mtype, self.single)
+            error = handle.factorize(self.data)
+            if error == 0 or spd is not None or error != -4:
+                break
+            del handle   # a pivot not positive: not positive definite, the indefinite factorisation next
+        if error == 0 and self.single and handle.iparm[13] > 0:
+            # perturbed pivots (a nearly singular indefinite matrix): refinement from a single factor
+            # may then diverge (a zero-diagonal saddle matrix: 68x the right-hand side), the double
+            # factor solves it to round-off -- so the double factor
+            self.single, self.dtype = False, np.float64
+            self.data = U.data.astype(np.float64)
+            handle = _PardisoHandle(indptr, indices, mtype, False)
+            error = handle.factorize(self.data)
+        if error != 0:
+            what = {-4: "zero pivot: not positive definite" if spd else "zero pivot",
+                    -2: "not enough memory", -1: "inconsistent input"}.get(error, "")
+            raise SolverError(f"linear solve: PARDISO factorisation failed (error {error}{': ' + what if what else ''})")
+        self._handle = handle
+        self.cholesky = mtype == 2
+        self.perturbed = int(handle.iparm[13])
+        self._nonzeros = int(handle.iparm[17])
 
     @property
     def factor_nonzeros(self) -> int:
-        return int(self.iparm[17])
-
-    def _call(self, phase: int, b: np.ndarray) -> np.ndarray:
-        import ctypes
-
-        x = np.zeros_like(b)
-        error = ctypes.c_int32(0)
-        one = ctypes.c_int32(1)
-        self._pardiso(self.pt.ctypes.data, ctypes.byref(one), ctypes.byref(one), ctypes.byref(self._mtype),
-                      ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(self.n)),
-                      self.data.ctypes.data, self.indptr.ctypes.data, self.indices.ctypes.data,
-                      self._perm.ctypes.data, ctypes.byref(ctypes.c_int32(1 if b.ndim == 1 else b.shape[1])),
-                      self.iparm.ctypes.data, ctypes.byref(ctypes.c_int32(0)), b.ctypes.data, x.ctypes.data,
-                      ctypes.byref(error))
-        if error.value != 0:
-            what = {-4: "zero pivot", -2: "not enough memory", -1: "inconsistent input"}.get(error.value, "")
-            raise SolverError(f"linear solve: PARDISO failed in phase {phase} (error {error.value}"
-                              f"{': ' + what if what else ''})")
-        return x
+        return self._nonzeros
 
     def precondition(self, b) -> np.ndarray:
         """``A^-1 b`` to the factor's precision (single: relative residual ~1e-6)."""
         b = np.asarray(b, dtype=np.float64)
         rhs = np.asfortranarray(b, dtype=self.dtype) if b.ndim == 2 else np.ascontiguousarray(b, dtype=self.dtype)
         with _mkl_threads(1):   # triangular solves: threads cost more than they give
-            x = self._call(33, rhs)
+            x = self._handle.call(33, self.data, rhs)[0]
         return np.ascontiguousarray(x, dtype=np.float64)
 
     def solve(self, b) -> np.ndarray:
@@ -320,14 +380,6 @@ class PardisoFactor:
             x += self.precondition(r)
             last = worst
         return x
-
-    def __del__(self):
-        if getattr(self, "_factored", False):
-            try:
-                self._call(-1, np.zeros(1, dtype=self.dtype))
-            except Exception:   # interpreter shutdown: nothing left to free
-                pass
-
 
 class DirectSolver:
     """Sparse LU (SuperLU) of every matrix it is given, or with ``backend="pardiso"`` an MKL PARDISO

@@ -378,13 +378,15 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     # recovery is the same for k = 1, 1.5 and 2 (marker RMS, activation and jaw errors).
     resolution = 0.5 * (options.resolution * options.noise) ** 2
 
-    def solve(ctrl, warm, tangent):
-        """Equilibrium of ``ctrl`` from ``warm``: chord iterations on ``tangent`` first, else Newton.
-        Raises :class:`_OutOfTime` when the fit's budget has run out (before, or during the solve)."""
+    def solve(ctrl, warm, tangent, previous=None):
+        """Equilibrium of ``ctrl`` from ``warm`` (or from ``previous`` with the bones moved, when that
+        is nearer): chord iterations on ``tangent`` first, else Newton. Raises :class:`_OutOfTime`
+        when the fit's budget has run out (before, or during the solve)."""
         if expired():
             raise _OutOfTime
         if tangent is not None and options.chord:
-            xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, tangent, extra_terms, frame=frame)
+            xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, tangent, extra_terms, frame=frame,
+                                                   previous=previous)
             rep.newton_iterations += its
             rep.chord_iterations += its
             rep.linear_solves += solves
@@ -524,7 +526,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 break
             # the full step first, its equilibrium warm-started from the first-order prediction
             t = time.perf_counter()
-            x1 = solve(ctrl(c + dc), J.predict(dc[:nc]), J.tangent)
+            x1 = solve(ctrl(c + dc), J.predict(dc[:nc]), J.tangent, x)
             F1 = math.inf if x1 is None else objective(c + dc, x1, mu)
             clock["equilibria"] += time.perf_counter() - t
             rep.ratios.append((F - F1) / predicted)

@@ -331,7 +331,7 @@ CHORD_LOOKAHEAD = 3   # chord iterations worth one Newton step (assembly + a few
 
 
 def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_iterations: int = 8,
-                     contraction: float = 0.5, chord_rate: float = 0.5, frame: float = 0.0):
+                     contraction: float = 0.5, chord_rate: float = 0.5, frame: float = 0.0, previous=None):
     """Equilibrium of ``controls`` from ``x0 (n, 3)`` (e.g. :meth:`EquilibriumJacobian.predict`)
     with the factorised tangent ``tangent`` of a nearby equilibrium (``EquilibriumJacobian.tangent``)
     in place of an AMG hierarchy or a fresh factorisation.
@@ -349,7 +349,13 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     from scratch). Gives up (``converged=False``) when a Newton step does not shrink the residual
     by ``contraction``, a chord iteration fails a second time, or CG fails -- the tangent here is then too
     far from ``K0`` -- or after ``max_iterations``. Returns ``(x (n, 3), iterations, linear solves,
-    converged)``; ``x`` is the iterate of least residual, a warm start for Newton if not converged."""
+    converged)``; ``x`` is the iterate of least residual, a warm start for Newton if not converged.
+
+    ``previous`` (``(n, 3)``, the equilibrium the step starts from): its flesh with the bones moved
+    to ``controls`` (:meth:`FaceSimulator.predict`) is the start instead of ``x0`` when its residual
+    is lower. A first-order prediction of a large step can invert tets (the paper-size face's first
+    tracked frame: residual 1.03 of the reference force against 0.0045 from the moved bones,
+    benchmarks/RESULTS.md, session 23); one more gradient and a harmonic solve check it."""
     import scipy.sparse.linalg as spla
 
     extras = sim.solve_terms(controls, frame, extra_terms)   # the same energy as FaceSimulator.equilibrium
@@ -357,6 +363,10 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     solves = 0
     with single_blas_thread():
         prob = Problem(sim.terms + extras, system, sim.attached_positions(controls, x0), controls.a)
+        if previous is not None:
+            moved = sim.predict(controls, previous)
+            if np.linalg.norm(prob.energy_and_gradient(moved)[1]) < np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]):
+                prob = Problem(sim.terms + extras, system, moved, controls.a)
         newton = sim.options.newton
         tol = newton.rtol * sim.force_scale(controls, extras, prob.x_fixed) + newton.atol
         u = prob.x_fixed[system.active].ravel().copy()

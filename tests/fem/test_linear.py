@@ -135,3 +135,26 @@ def test_pardiso_single_precision_factor_refines_to_double():
     assert np.linalg.eigvalsh(S.toarray()).min() < 0
     x = PardisoFactor(S).solve(b)
     assert np.linalg.norm(S @ x - b) < 1e-9 * np.linalg.norm(b)
+
+
+def test_pardiso_tries_cholesky_and_falls_back_to_ldlt_on_an_indefinite_matrix():
+    """Positive definite: a Cholesky factor; indefinite: Cholesky's zero pivot caught, the
+    LDL^T factor solves it; ``spd=True`` says it is not positive definite; a matrix whose diagonal
+    has structural zeros (PARDISO's analysis needs them stored) is factorised either way."""
+    pytest.importorskip("pypardiso")
+    from facesim.errors import SolverError
+    from facesim.fem.linear import PardisoFactor
+
+    A = laplacian_3d(10)   # diagonal 7, eigenvalues in (1, 13)
+    b = np.random.default_rng(8).normal(size=A.shape[0])
+    f = PardisoFactor(A)
+    assert f.cholesky and np.linalg.norm(A @ f.solve(b) - b) < 1e-10 * np.linalg.norm(b)
+    S = (A - 7.0 * sp.identity(A.shape[0])).tocsr()   # indefinite, its diagonal all zero
+    S.eliminate_zeros()
+    assert S.diagonal().max() == 0 and np.linalg.eigvalsh(S.toarray()).min() < -1
+    g = PardisoFactor(S)
+    assert not g.cholesky and np.linalg.norm(S @ g.solve(b) - b) < 1e-8 * np.linalg.norm(b)
+    assert not PardisoFactor(A, spd=False).cholesky
+    with pytest.raises(SolverError, match="not positive definite"):
+        PardisoFactor(S, spd=True)
+    np.testing.assert_allclose(f.solve(b), PardisoFactor(A, single=False).solve(b), rtol=1e-8, atol=1e-12)
