@@ -10,7 +10,8 @@ right-hand sides. The matrices are symmetric, so SuperLU runs in its symmetric m
 degree on A^T + A, diagonal pivots preferred): half the fill of the default column ordering
 and a 2-4x faster factorisation of the face's tangent (issue 5, benchmarks/bench_jacobian.py).
 Pardiso: the same, by MKL PARDISO (``pypardiso``, the optional extra ``facesim[pardiso]``) on
-the upper triangle as a symmetric indefinite matrix: supernodal, METIS-ordered and threaded,
+the upper triangle, by Cholesky where the matrix is positive definite and as a symmetric
+indefinite matrix (LDL^T) where it is not: supernodal, METIS-ordered and threaded,
 ~8x faster to factorise than SuperLU on the medium face's tangent and the direct solver that
 still fits the paper-resolution face (benchmarks/RESULTS.md).
 

@@ -351,22 +351,26 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     far from ``K0`` -- or after ``max_iterations``. Returns ``(x (n, 3), iterations, linear solves,
     converged)``; ``x`` is the iterate of least residual, a warm start for Newton if not converged.
 
-    ``previous`` (``(n, 3)``, the equilibrium the step starts from): its flesh with the bones moved
-    to ``controls`` (:meth:`FaceSimulator.predict`) is the start instead of ``x0`` when its residual
-    is lower. A first-order prediction of a large step can invert tets (the paper-size face's first
-    tracked frame: residual 1.03 of the reference force against 0.0045 from the moved bones,
-    benchmarks/RESULTS.md, session 23); one more gradient and a harmonic solve check it."""
+    The start is ``x0`` with the bones placed exactly and their difference from ``x0``'s carried
+    into the flesh (:meth:`FaceSimulator.predict`, as :meth:`FaceSimulator.equilibrium` starts),
+    not snapped onto the bone nodes alone (the paper-size face's third tracked frame: residual
+    0.209 against 0.287). ``previous`` (``(n, 3)``, the equilibrium the step starts from): its flesh
+    with the bones moved to ``controls`` is the start instead when its residual is lower. A
+    first-order prediction can be far off (the paper-size face's first tracked frame, on a fresh
+    Jacobian: residual 294 against 1.29 from the moved bones, benchmarks/RESULTS.md, session 23); one more gradient and a harmonic solve check it."""
     import scipy.sparse.linalg as spla
 
     extras = sim.solve_terms(controls, frame, extra_terms)   # the same energy as FaceSimulator.equilibrium
     system = sim.system
     solves = 0
     with single_blas_thread():
-        prob = Problem(sim.terms + extras, system, sim.attached_positions(controls, x0), controls.a)
+        prob = Problem(sim.terms + extras, system, sim.predict(controls, x0), controls.a)
+        g0 = prob.energy_and_gradient(prob.x_fixed)[1]
         if previous is not None:
             moved = sim.predict(controls, previous)
-            if np.linalg.norm(prob.energy_and_gradient(moved)[1]) < np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]):
-                prob = Problem(sim.terms + extras, system, moved, controls.a)
+            g_moved = prob.energy_and_gradient(moved)[1]
+            if np.linalg.norm(g_moved) < np.linalg.norm(g0):
+                prob, g0 = Problem(sim.terms + extras, system, moved, controls.a), g_moved
         newton = sim.options.newton
         tol = newton.rtol * sim.force_scale(controls, extras, prob.x_fixed) + newton.atol
         u = prob.x_fixed[system.active].ravel().copy()
@@ -377,7 +381,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         best_u = u.copy()
         retried = False
         for it in range(max_iterations + 1):
-            g = prob.energy_and_gradient(x)[1]
+            g = g0 if it == 0 else prob.energy_and_gradient(x)[1]
             res = float(np.linalg.norm(g))
             if res <= tol:
                 return x, it, solves, True
