@@ -290,8 +290,8 @@ class PardisoFactor:
     Cholesky (PARDISO's ``mtype`` 2) first -- the projected Newton tangents and the true tangent
     at a stable equilibrium are positive definite -- and, where a pivot is not positive (an
     indefinite true tangent), the symmetric indefinite LDL^T with Bunch-Kaufman pivots (``mtype``
-    -2); ``cholesky`` says which. On the paper-size face's tangent Cholesky factorises in 6.9 s
-    against 8.7 s and solves in 0.14 s against 0.17 s (benchmarks/RESULTS.md, session 23); a failed
+    -2); ``cholesky`` says which. On the paper-size face's tangent Cholesky factorises in 12.0 s
+    against 12.3 s and solves in 0.15 s against 0.18 s (benchmarks/RESULTS.md, session 23); a failed
     attempt costs up to one more factorisation.
 
     ``solve(b)`` (``(N,)`` or ``(N, k)``, like SuperLU's) is accurate to double precision: a
