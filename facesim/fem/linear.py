@@ -226,6 +226,13 @@ REFINE_RTOL = 1e-10   # relative residual a PARDISO solve refines to (the face: 
 REFINE_STEPS = 6
 
 
+def _pardiso_error(error: int, spd: bool = False) -> str:
+    """PARDISO's error code in words, e.g. ``error -4: zero pivot``."""
+    what = {-4: "zero pivot: not positive definite" if spd else "zero pivot",
+            -2: "not enough memory", -1: "inconsistent input"}.get(error, "")
+    return f"error {error}{': ' + what if what else ''}"
+
+
 class _PardisoHandle:
     """One PARDISO instance (its ``pt``): ``factorize`` runs the ordering, the symbolic and the
     numerical factorisation (phase 12) of one matrix of ``mtype``; ``call`` any later phase.
@@ -272,9 +279,7 @@ class _PardisoHandle:
                       self.iparm.ctypes.data, ctypes.byref(ctypes.c_int32(0)), b.ctypes.data, x.ctypes.data,
                       ctypes.byref(error))
         if check and error.value != 0:
-            what = {-4: "zero pivot", -2: "not enough memory", -1: "inconsistent input"}.get(error.value, "")
-            raise SolverError(f"linear solve: PARDISO failed in phase {phase} (error {error.value}"
-                              f"{': ' + what if what else ''})")
+            raise SolverError(f"linear solve: PARDISO failed in phase {phase} ({_pardiso_error(error.value)})")
         return x, error.value
 
     def __del__(self):
@@ -332,7 +337,7 @@ class PardisoFactor:
         for mtype in ((2, -2) if spd is None else (2,) if spd else (-2,)):
             handle = _PardisoHandle(indptr, indices, mtype, self.single)
             error = handle.factorize(self.data)
-            if error == 0 or spd is not None or error != -4:
+            if error != -4:
                 break
             del handle   # a pivot not positive: not positive definite, the indefinite factorisation next
         if error == 0 and self.single and handle.iparm[13] > 0:
@@ -344,9 +349,7 @@ class PardisoFactor:
             handle = _PardisoHandle(indptr, indices, mtype, False)
             error = handle.factorize(self.data)
         if error != 0:
-            what = {-4: "zero pivot: not positive definite" if spd else "zero pivot",
-                    -2: "not enough memory", -1: "inconsistent input"}.get(error, "")
-            raise SolverError(f"linear solve: PARDISO factorisation failed (error {error}{': ' + what if what else ''})")
+            raise SolverError(f"linear solve: PARDISO factorisation failed ({_pardiso_error(error, spd=bool(spd))})")
         self._handle = handle
         self.cholesky = mtype == 2
         self.perturbed = int(handle.iparm[13])
