@@ -327,6 +327,9 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
 # whose nonlinearity then cut the residual only 30-fold. A fixed 1e-2: 31 % fewer triangular solves
 # on the demo clip for 4 % more Newton steps, the same recovery (benchmarks/RESULTS.md, session 22).
 CHORD_NEWTON_RTOL = 1e-2
+#: step lengths a Newton step of :func:`near_equilibrium` that did not shrink the residual enough is
+#: cut back to (each one gradient), before the solve is given up to a Newton solve with line search
+NEWTON_BACKTRACK = (0.5, 0.25, 0.125)
 CHORD_LOOKAHEAD = 3   # chord iterations worth one Newton step (assembly + a few preconditioned CG iterations)
 
 
@@ -380,6 +383,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=inverse, dtype=np.float64)
         best_u = u.copy()
         retried = False
+        du = None
         for it in range(max_iterations + 1):
             g = g0 if it == 0 else prob.energy_and_gradient(x)[1]
             res = float(np.linalg.norm(g))
@@ -393,6 +397,21 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
                 retried, chord = True, False
                 x, u, res = best, best_u.copy(), previous
                 g = prob.energy_and_gradient(x)[1]
+            elif not chord and it < max_iterations and not rate <= contraction:
+                # a Newton step that overshot (contact coming on, a soft direction of a wide step):
+                # shorter steps along it, each one more gradient, before giving the solve up
+                for alpha in NEWTON_BACKTRACK:
+                    u = best_u + alpha * du
+                    x = prob.positions(u)
+                    g = prob.energy_and_gradient(x)[1]
+                    res = float(np.linalg.norm(g))
+                    if res <= (1.0 - alpha * (1.0 - contraction)) * previous:
+                        break
+                else:
+                    return best, it, solves, False
+                if res <= tol:
+                    return x, it, solves, True
+                best, best_u, previous = x, u.copy(), res
             elif it == max_iterations or not np.isfinite(res) or rate > (1.0 if chord else contraction):
                 return best, it, solves, False
             else:

@@ -153,6 +153,39 @@ def test_near_equilibrium_reuses_the_tangent(box_model):
     assert not ok_far and np.isfinite(x_far).all()
 
 
+def test_near_equilibrium_cuts_back_an_overshooting_newton_step(box_model, monkeypatch):
+    """A Newton step of near_equilibrium that does not shrink the residual enough is cut back along
+    its direction (each trial one gradient) rather than giving the solve up: with CG's answer
+    doubled (an overshoot) the solve still converges, through half steps, to Newton's equilibrium;
+    without the cut-back it gives up."""
+    import facesim.inverse.jacobian as jac
+
+    sim = FaceSimulator(box_model, EquilibriumOptions(newton=NewtonOptions(linear_solver="direct", rtol=1e-9)),
+                        jaw_model=SlidingCondyleJaw(box_model.jaw))
+    controls = Controls([0.3, 0.2], jaw=[0.05, 0.5, 0.5])
+    eq = sim.equilibrium(controls)
+    space = ControlSpace.of(sim)
+    J = equilibrium_jacobian(sim, controls, eq.x, space)
+    dc = np.array([0.05, 0.04, 0.01, 0.2, -0.1])
+    target = space.apply(controls, space.vector(controls) + dc)
+    newton = sim.equilibrium(target, x0=J.predict(dc))
+    exact_cg = jac.counted_cg
+
+    def overshooting_cg(*args, **kwargs):
+        du, info, its = exact_cg(*args, **kwargs)
+        return 2.0 * du, info, its
+
+    monkeypatch.setattr(jac, "counted_cg", overshooting_cg)
+    # chord_rate 0: one chord iteration, then Newton steps (each one doubled)
+    x, iterations, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
+    assert ok and iterations >= 2
+    scale = np.abs(newton.x - eq.x).max()
+    np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
+    monkeypatch.setattr(jac, "NEWTON_BACKTRACK", ())
+    _, _, _, ok_without = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
+    assert not ok_without
+
+
 def test_pardiso_superlu_and_amg_jacobians_agree(box_model):
     """The three linear solvers behind the Jacobian give the same columns, and the PARDISO
     factorisation serves near_equilibrium's chord iterations like SuperLU's."""
