@@ -506,10 +506,19 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             np.abs(dc).max() < options.step_tolerance
 
     stop = ""
+    drifted = False   # the last step's secant mismatch exceeded jacobian_drift: evaluate J before the next
     try:
         while rep.gn_steps < options.max_steps:
-            if J is None or J.age > options.jacobian_max_age:
-                J = exact_jacobian(c, x)
+            if drifted and J.age <= options.jacobian_max_age:
+                # the secant-updated Jacobian (exact along the last step) first decides whether
+                # there is a step worth taking: a drifted last step is often the frame's last, and
+                # an evaluation only to stop cost the paper-size face 18-20 s a tracked frame
+                dc, mu, F, predicted, slope = linear_step(J, c, x)
+                if small(dc, F, predicted):
+                    stop = "converged"
+                    break
+            if J is None or drifted or J.age > options.jacobian_max_age:
+                J, drifted = exact_jacobian(c, x), False
             dc, mu, F, predicted, slope = linear_step(J, c, x)
             if screen is not None:
                 dropped = [j for j in screen(P + (marker_jacobian(J, x, c) @ dc).reshape(-1, 3)) if keep[j]]
@@ -579,13 +588,15 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             if improvement < options.tolerance or np.abs(step).max() < options.step_tolerance:
                 stop = "converged"
                 break
-            if mismatch > options.jacobian_drift:
-                J = None
+            # the next step evaluates J anew; the next frame starts from the secant-updated one (its
+            # first step is redone with an exact J if the ratio test fails: the paper-size face's
+            # first tracked frame saves one evaluation, 18 s, benchmarks/RESULTS.md session 24)
+            drifted = mismatch > options.jacobian_drift
     except _OutOfTime:   # the budget ran out: the fit stays at its last accepted step
         stop = TIME_LIMIT
     if not stop:   # out of steps: converged if the (secant-updated) Jacobian predicts no worthwhile step
         stop = "step_limit"
-        if J is not None and J.age <= options.jacobian_max_age:
+        if J is not None and not drifted and J.age <= options.jacobian_max_age:
             dc, _, F_next, predicted, _ = linear_step(J, c, x)
             if small(dc, F_next, predicted):
                 stop = "converged"
