@@ -34,7 +34,9 @@ line search ~10 % of the time):
   mismatch of the last step ``|dP - J dc| / |J dc|`` exceeds ``jacobian_drift`` (the Jacobian
   changed along the step by about twice that), when it carries more than ``jacobian_max_age``
   updates, or when a step taken with an updated Jacobian fails the ratio test (the step is then
-  redone with the exact one).
+  redone with the exact one). After a drifted step the updated Jacobian first applies the
+  stopping rule below: the exact one is evaluated only when another step is worth taking, else
+  the updated one is handed to the next frame (whose first step is guarded by the ratio test).
 * **Stopping without another step.** Before each step the linear model predicts its decrease;
   when that is below ``tolerance`` times the objective (or times the noise energy
   ``1/2 sum w noise^2``, when the fit is already at the noise level), or below

@@ -113,6 +113,35 @@ def test_tracked_frames_take_one_step_and_reuse_the_jacobian(box_sim, box_model)
     np.testing.assert_allclose(fits[3].controls.a, reference.controls.a, atol=1e-3)
 
 
+def test_a_drifted_step_stops_on_its_updated_jacobian_and_hands_it_on(box_sim, box_model):
+    """With every step counted as drifted (jacobian_drift 1e-12), the secant-updated Jacobian
+    first decides whether another step is worth taking: a frame that stops after its steps has
+    evaluated one exact Jacobian per step, not one more only to stop, and hands the updated one to
+    the next frame, which starts from it (its first step then evaluates an exact one, the last
+    step having drifted). The controls are those of an undrifted fit."""
+    space = ControlSpace(2)
+    jaw = [0.05, 0.5, 0.4]
+    truth = [np.array([0.3, 0.2]), np.array([0.34, 0.22])]
+    x, targets = None, []
+    for a in truth:
+        x = box_sim.equilibrium(Controls(a, jaw=jaw), x0=x).x
+        targets.append(box_model.marker_positions(x))
+    start = Controls(np.array([0.1, 0.1]), jaw=jaw)
+    x0 = box_sim.equilibrium(start).x
+    drifty = FitOptions(noise=0.02, jacobian_drift=1e-12)
+    fit = fit_frame(box_sim, targets[0], start, x0, space, drifty)
+    rep = fit.report
+    assert rep.stop_reason == "converged" and rep.gn_steps >= 1
+    assert rep.jacobians == rep.gn_steps, (rep.jacobians, rep.gn_steps)
+    assert fit.jacobian is not None and fit.jacobian.age >= 1          # updated, not re-evaluated
+    np.testing.assert_allclose(fit.controls.a, truth[0], atol=1e-3)
+    plain = fit_frame(box_sim, targets[0], start, x0, space, FitOptions(noise=0.02))
+    np.testing.assert_allclose(fit.controls.a, plain.controls.a, atol=1e-3)
+    nxt = fit_frame(box_sim, targets[1], fit.controls, fit.x, space, drifty, jacobian=fit.jacobian)
+    assert nxt.report.stop_reason == "converged"
+    np.testing.assert_allclose(nxt.controls.a, truth[1], atol=1e-3)
+
+
 def test_line_search_backtracks_extends_and_falls_back_to_golden_section(box_sim, box_model, monkeypatch):
     """From the neutral face the first Gauss-Newton step overshoots into the nonlinear jaw range:
     the full step fails the ratio test and one backtracking trial is kept; later steps are kept
