@@ -127,12 +127,9 @@ def test_secant_update_is_exact_along_the_step_and_unchanged_across(box_model):
     np.testing.assert_array_equal(back.dP, U.dP)
 
 
-def test_near_equilibrium_reuses_the_tangent(box_model):
-    """Chord / preconditioned-Newton iterations on the Jacobian's factorised tangent reach the same
-    equilibrium as Newton from the first-order prediction; a far-away state is refused, not
-    mis-solved."""
-    from facesim.inverse.jacobian import near_equilibrium
-
+def _near_case(box_model):
+    """A tight direct-solver simulator, an equilibrium ``eq``, its Jacobian ``J``, a control change
+    ``dc`` and the controls ``target`` it leads to."""
     sim = FaceSimulator(box_model, EquilibriumOptions(newton=NewtonOptions(linear_solver="direct", rtol=1e-9)),
                         jaw_model=SlidingCondyleJaw(box_model.jaw))
     controls = Controls([0.3, 0.2], jaw=[0.05, 0.5, 0.5])
@@ -140,7 +137,16 @@ def test_near_equilibrium_reuses_the_tangent(box_model):
     space = ControlSpace.of(sim)
     J = equilibrium_jacobian(sim, controls, eq.x, space)
     dc = np.array([0.05, 0.04, 0.01, 0.2, -0.1])
-    target = space.apply(controls, space.vector(controls) + dc)
+    return sim, eq, J, dc, space.apply(controls, space.vector(controls) + dc)
+
+
+def test_near_equilibrium_reuses_the_tangent(box_model):
+    """Chord / preconditioned-Newton iterations on the Jacobian's factorised tangent reach the same
+    equilibrium as Newton from the first-order prediction; a far-away state is refused, not
+    mis-solved."""
+    from facesim.inverse.jacobian import near_equilibrium
+
+    sim, eq, J, dc, target = _near_case(box_model)
     x, iterations, solves, ok = near_equilibrium(sim, target, J.predict(dc), J.tangent)
     newton = sim.equilibrium(target, x0=J.predict(dc))
     assert ok and 1 <= iterations <= 8 and solves >= iterations
@@ -160,14 +166,7 @@ def test_near_equilibrium_cuts_back_an_overshooting_newton_step(box_model, monke
     without the cut-back it gives up."""
     import facesim.inverse.jacobian as jac
 
-    sim = FaceSimulator(box_model, EquilibriumOptions(newton=NewtonOptions(linear_solver="direct", rtol=1e-9)),
-                        jaw_model=SlidingCondyleJaw(box_model.jaw))
-    controls = Controls([0.3, 0.2], jaw=[0.05, 0.5, 0.5])
-    eq = sim.equilibrium(controls)
-    space = ControlSpace.of(sim)
-    J = equilibrium_jacobian(sim, controls, eq.x, space)
-    dc = np.array([0.05, 0.04, 0.01, 0.2, -0.1])
-    target = space.apply(controls, space.vector(controls) + dc)
+    sim, eq, J, dc, target = _near_case(box_model)
     newton = sim.equilibrium(target, x0=J.predict(dc))
     exact_cg = jac.counted_cg
 
