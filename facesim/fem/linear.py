@@ -448,6 +448,9 @@ class FactorPCG:
             x, info, its = counted_cg(A, b, rtol, self.maxiter, M)
         if info != 0 or not np.isfinite(x).all():   # no factor, or too far from it: a factor of A
             self.stats.solve_seconds += time.perf_counter() - t
+            # a factor made here before is dropped first: two of them beside the caller's would
+            # be 3 at once (the paper-size face: 1.9 GB each, the cold frame's peak 7.0 GB)
+            self.factor = None
             self.factor = DirectSolver(self.stats, self.backend).factorize(A)   # counted as a set-up
             t = time.perf_counter()
             with single_blas_thread():

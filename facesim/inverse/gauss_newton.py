@@ -520,6 +520,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                     stop = "converged"
                     break
             if J is None or drifted or J.age > options.jacobian_max_age:
+                J = None   # its factor freed before the new one is made (unless the caller holds it)
                 J, drifted = exact_jacobian(c, x), False
             dc, mu, F, predicted, slope = linear_step(J, c, x)
             if screen is not None:
