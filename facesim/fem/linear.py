@@ -290,6 +290,22 @@ class _PardisoHandle:
                 pass
 
 
+def _upper_with_diagonal(A) -> sp.csr_matrix:
+    """The upper triangle of ``A`` as sorted CSR without duplicates, every diagonal entry stored:
+    PARDISO wants the zeros too (a missing one crashes its analysis; COO to CSR keeps explicit zeros)."""
+    U = sp.triu(A, format="csr")
+    U.sum_duplicates()
+    U.sort_indices()
+    n = int(A.shape[0])
+    if not (np.diff(U.indptr) > 0).all() or not (U.indices[U.indptr[:-1]] == np.arange(n)).all():
+        U = U.tocoo()
+        U = sp.csr_matrix((np.r_[U.data, np.zeros(n)], (np.r_[U.row, np.arange(n)], np.r_[U.col, np.arange(n)])),
+                          shape=A.shape)
+        U.sum_duplicates()
+        U.sort_indices()
+    return U
+
+
 class PardisoFactor:
     """MKL PARDISO factorisation of the symmetric matrix ``A``, in single precision by default:
     Cholesky (PARDISO's ``mtype`` 2) first -- the projected Newton tangents and the true tangent
@@ -314,26 +330,19 @@ class PardisoFactor:
     in PARDISO's memory until this object is collected."""
 
     def __init__(self, A, single: bool = True, spd: bool | None = None):
-        A = sp.csr_matrix(A, dtype=np.float64)
-        self.full = A   # for the refinement's residual
-        U = sp.triu(A, format="csr")
-        U.sum_duplicates()
-        U.sort_indices()
+        # the matrix as given (no copy of a float64 sparse matrix: the paper-size tangent's CSR is
+        # 0.36 GB) for the refinement's residual, until release_matrix
+        A = A if sp.issparse(A) and A.dtype == np.float64 else sp.csr_matrix(A, dtype=np.float64)
+        self.full = A
+        U = _upper_with_diagonal(A)
         n = int(A.shape[0])
-        if not (np.diff(U.indptr) > 0).all() or not (U.indices[U.indptr[:-1]] == np.arange(n)).all():
-            # PARDISO wants every diagonal entry stored, zeros too (a missing one crashes its
-            # analysis): the diagonal's pattern added (COO to CSR keeps explicit zeros)
-            U = U.tocoo()
-            U = sp.csr_matrix((np.r_[U.data, np.zeros(n)], (np.r_[U.row, np.arange(n)], np.r_[U.col, np.arange(n)])),
-                              shape=A.shape)
-            U.sum_duplicates()
-            U.sort_indices()
         self.shape = A.shape
         self.n = n
         self.single = bool(single)
         self.dtype = np.float32 if self.single else np.float64
         self.data = U.data.astype(self.dtype)
         indptr, indices = U.indptr.astype(np.int32), U.indices.astype(np.int32)
+        del U   # not kept through the factorisation (its float64 copy: 0.27 GB at paper size)
         for mtype in ((2, -2) if spd is None else (2,) if spd else (-2,)):
             handle = _PardisoHandle(indptr, indices, mtype, self.single)
             error = handle.factorize(self.data)
@@ -345,7 +354,7 @@ class PardisoFactor:
             # may then diverge (a zero-diagonal saddle matrix: 68x the right-hand side), the double
             # factor solves it to round-off -- so the double factor
             self.single, self.dtype = False, np.float64
-            self.data = U.data.astype(np.float64)
+            self.data = _upper_with_diagonal(self.full).data
             handle = _PardisoHandle(indptr, indices, mtype, False)
             error = handle.factorize(self.data)
         if error != 0:
@@ -367,6 +376,12 @@ class PardisoFactor:
             x = self._handle.call(33, self.data, rhs)[0]
         return np.ascontiguousarray(x, dtype=np.float64)
 
+    def release_matrix(self) -> None:
+        """Drop the reference to ``A`` kept for :meth:`solve`'s refinement, where only
+        :meth:`precondition` will be used (a factor kept for chord iterations or as a
+        preconditioner); :meth:`solve` then raises."""
+        self.full = None
+
     def solve(self, b) -> np.ndarray:
         """``A^-1 b`` to double precision: refined until the relative residual is ``REFINE_RTOL``
         (or stops halving) after a single-precision solve or a perturbed pivot."""
@@ -374,6 +389,9 @@ class PardisoFactor:
         x = self.precondition(b)
         if not (self.single or self.perturbed):   # a perturbed pivot: the double factor is not exact either
             return x
+        if self.full is None:
+            raise SolverError("linear solve: this PARDISO factor's matrix was released (release_matrix): "
+                              "it only preconditions")
         size = np.maximum(np.linalg.norm(b, axis=0), 1e-300)
         last = np.inf
         for _ in range(REFINE_STEPS):
@@ -455,6 +473,8 @@ class FactorPCG:
             t = time.perf_counter()
             with single_blas_thread():
                 x = self.factor.solve(b)
+            if hasattr(self.factor, "release_matrix"):   # from here on it only preconditions
+                self.factor.release_matrix()
             its += 1
         self.stats.solves += 1
         self.stats.iterations.append(its)

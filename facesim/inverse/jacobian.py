@@ -315,6 +315,8 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
     dP = marker_jacobian(model, x) @ dx
     t2 = time.perf_counter()
     tangent = getattr(solver, "lu", None)
+    if hasattr(tangent, "release_matrix"):   # kept for chord iterations and preconditioning only
+        tangent.release_matrix()
     return EquilibriumJacobian(space, controls, x, dx, dP,
                                seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
                                         "total": t2 - t0},

@@ -137,6 +137,27 @@ def test_pardiso_single_precision_factor_refines_to_double():
     assert np.linalg.norm(S @ x - b) < 1e-9 * np.linalg.norm(b)
 
 
+def test_pardiso_factor_keeps_the_matrix_as_given_until_released():
+    """A float64 sparse matrix is kept as given (no copy: the refinement's residual uses it, BSR
+    too); after release_matrix the factor still preconditions (single precision, ~1e-6) and its
+    double-precision solve refuses rather than return an unrefined answer."""
+    pytest.importorskip("pypardiso")
+    from facesim.errors import SolverError
+    from facesim.fem.linear import PardisoFactor
+
+    A = laplacian_3d(8).tobsr(blocksize=(2, 2))
+    b = np.random.default_rng(3).normal(size=A.shape[0])
+    f = PardisoFactor(A)
+    assert f.full is A
+    x = f.solve(b)
+    assert np.linalg.norm(A @ x - b) < 1e-10 * np.linalg.norm(b)
+    f.release_matrix()
+    assert f.full is None
+    assert np.linalg.norm(A @ f.precondition(b) - b) < 1e-5 * np.linalg.norm(b)
+    with pytest.raises(SolverError, match="released"):
+        f.solve(b)
+
+
 def test_pardiso_tries_cholesky_and_falls_back_to_ldlt_on_an_indefinite_matrix():
     """Positive definite: a Cholesky factor; indefinite: Cholesky's zero pivot caught, the
     LDL^T factor solves it; ``spd=True`` says it is not positive definite; a matrix whose diagonal
