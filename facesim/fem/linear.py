@@ -82,7 +82,7 @@ class AMGSolver:
     """CG preconditioned by a reusable pyamg smoothed-aggregation hierarchy."""
 
     def __init__(self, maxiter: int = 500, rebuild_factor: float = 2.0, smooth: str = "energy",
-                 direct_below: int = 3000):
+                 direct_below: int = 3000, stats: LinearStats | None = None):
         self.direct_below = int(direct_below)   # tiny systems: a sparse LU beats any hierarchy
         self.maxiter = int(maxiter)
         self.rebuild_factor = float(rebuild_factor)
@@ -90,7 +90,7 @@ class AMGSolver:
         self.ml = None
         self.base_iterations = None
         self.stale = False
-        self.stats = LinearStats()
+        self.stats = stats if stats is not None else LinearStats()
         self._direct = DirectSolver(self.stats)
 
     def setup(self, A: sp.bsr_matrix, B: np.ndarray) -> None:
@@ -441,6 +441,12 @@ def preconditioner(factor):
     return getattr(factor, "precondition", factor.solve)
 
 
+#: unknowns above which FactorPCG, too far from the factor it was given, solves by AMG-CG rather
+#: than make a second factorisation (memory: two factors of the paper-size face's tangent and a
+#: factorisation's workspace set its peak, benchmarks/RESULTS.md session 24)
+FACTOR_PCG_AMG_ABOVE = 200_000
+
+
 class FactorPCG:
     """CG preconditioned by the factorisation of a nearby matrix, refactorised where it stops being near.
 
@@ -450,13 +456,19 @@ class FactorPCG:
     is factorised (PARDISO when installed, else SuperLU), solved directly, and its factor
     preconditions the steps after it. A Newton step then costs an assembly and a few triangular
     solves, or one factorisation -- not an AMG set-up and tens of V-cycles (benchmarks/RESULTS.md,
-    session 22). The factor it makes is its own: ``factor`` is never changed."""
+    session 22). The factor it makes is its own: ``factor`` is never changed. Above ``amg_above``
+    unknowns (default :data:`FACTOR_PCG_AMG_ABOVE`) a step too far from the given factor is solved
+    by AMG-CG instead: the caller still holds that factor, and a second one beside it set the
+    paper-size face's peak memory."""
 
-    def __init__(self, factor=None, maxiter: int = 25, backend: str | None = None):
+    def __init__(self, factor=None, maxiter: int = 25, backend: str | None = None,
+                 amg_above: int | None = None):
         self.factor = factor
         self.maxiter = int(maxiter)
         self.backend = backend or ("pardiso" if pardiso_available() else "superlu")
         self.stats = LinearStats()
+        self.amg_above = FACTOR_PCG_AMG_ABOVE if amg_above is None else int(amg_above)
+        self.amg = None
 
     def solve(self, A, b: np.ndarray, B=None, rtol: float = 1e-8) -> np.ndarray:
         t = time.perf_counter()
@@ -464,6 +476,12 @@ class FactorPCG:
         if self.factor is not None:
             M = spla.LinearOperator(A.shape, matvec=preconditioner(self.factor), dtype=np.float64)
             x, info, its = counted_cg(A, b, rtol, self.maxiter, M)
+        if (info != 0 or not np.isfinite(x).all()) and self.factor is not None and A.shape[0] > self.amg_above:
+            # too far from the given factor on a large system: AMG-CG, not a second factor beside
+            # the caller's (the paper-size face: 1.6 GB more at the cold frame's peak)
+            self.stats.solve_seconds += time.perf_counter() - t
+            self.amg = self.amg or AMGSolver(stats=self.stats)
+            return self.amg.solve(A, b, B, rtol)
         if info != 0 or not np.isfinite(x).all():   # no factor, or too far from it: a factor of A
             self.stats.solve_seconds += time.perf_counter() - t
             # a factor made here before is dropped first: two of them beside the caller's would

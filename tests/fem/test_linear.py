@@ -106,6 +106,28 @@ def test_factor_pcg_uses_a_near_factor_and_refactorises_a_far_one(backend):
     assert fresh.stats.setups == 1
 
 
+def test_factor_pcg_on_a_large_system_solves_a_far_one_by_amg_not_a_second_factor():
+    """Above ``amg_above`` unknowns a system too far from the given factor is solved by AMG-CG to
+    the tolerance asked, and no factorisation of its own is made (the given factor, still held by
+    the caller, stays the preconditioner of the next steps)."""
+    from facesim.fem.linear import FactorPCG
+
+    n = 16
+    A = laplacian_3d(n)   # 4,096 unknowns: above AMGSolver's direct_below
+    b = np.random.default_rng(4).normal(size=A.shape[0])
+    given = factorize(A)
+    solver = FactorPCG(given, maxiter=25, backend="superlu", amg_above=1000)
+    one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    far = (A + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tobsr(blocksize=(1, 1))
+    x = solver.solve(far, b, np.ones((A.shape[0], 1)), rtol=1e-8)
+    assert np.linalg.norm(far @ x - b) <= 1e-8 * np.linalg.norm(b)
+    assert solver.factor is given and solver.amg is not None and solver.amg.stats is solver.stats
+    assert solver.stats.iterations[-1] > 1                       # CG iterations, not a direct solve
+    below = FactorPCG(factorize(A), maxiter=25, backend="superlu", amg_above=10**6)
+    below.solve(far.tocsr(), b, rtol=1e-8)
+    assert below.amg is None and below.factor is not None and below.stats.setups == 1   # factorised
+
+
 def test_pardiso_single_precision_factor_refines_to_double():
     """The single-precision factor: ``precondition`` to ~1e-6, ``solve`` (one refinement step in
     double) to ~1e-10 and better, one and many right-hand sides; a double factor solves exactly."""
