@@ -458,8 +458,8 @@ class FactorPCG:
     solves, or one factorisation -- not an AMG set-up and tens of V-cycles (benchmarks/RESULTS.md,
     session 22). The factor it makes is its own: ``factor`` is never changed. Above ``amg_above``
     unknowns (default :data:`FACTOR_PCG_AMG_ABOVE`) a step too far from the given factor is solved
-    by AMG-CG instead: the caller still holds that factor, and a second one beside it set the
-    paper-size face's peak memory."""
+    by AMG-CG instead, and so are all later steps: the caller still holds that factor, and a
+    second one beside it set the paper-size face's peak memory."""
 
     def __init__(self, factor=None, maxiter: int = 25, backend: str | None = None,
                  amg_above: int | None = None):
@@ -471,6 +471,8 @@ class FactorPCG:
         self.amg = None
 
     def solve(self, A, b: np.ndarray, B=None, rtol: float = 1e-8) -> np.ndarray:
+        if self.amg is not None:   # the given factor was too far once: so it stays (the Newton moves on)
+            return self.amg.solve(A, b, B, rtol)
         t = time.perf_counter()
         x, info, its = None, 1, 0
         if self.factor is not None:

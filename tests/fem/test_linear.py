@@ -108,14 +108,22 @@ def test_factor_pcg_uses_a_near_factor_and_refactorises_a_far_one(backend):
 
 def test_factor_pcg_on_a_large_system_solves_a_far_one_by_amg_not_a_second_factor():
     """Above ``amg_above`` unknowns a system too far from the given factor is solved by AMG-CG to
-    the tolerance asked, and no factorisation of its own is made (the given factor, still held by
-    the caller, stays the preconditioner of the next steps)."""
+    the tolerance asked, no factorisation of its own is made, and the next solves go to AMG-CG
+    straight away (the given factor is not tried again)."""
     from facesim.fem.linear import FactorPCG
+
+    class Counting:   # the given factor, its applications counted
+        def __init__(self, factor):
+            self.factor, self.calls = factor, 0
+
+        def solve(self, b):
+            self.calls += 1
+            return self.factor.solve(b)
 
     n = 16
     A = laplacian_3d(n)   # 4,096 unknowns: above AMGSolver's direct_below
     b = np.random.default_rng(4).normal(size=A.shape[0])
-    given = factorize(A)
+    given = Counting(factorize(A))
     solver = FactorPCG(given, maxiter=25, backend="superlu", amg_above=1000)
     one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
     far = (A + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tobsr(blocksize=(1, 1))
@@ -123,6 +131,10 @@ def test_factor_pcg_on_a_large_system_solves_a_far_one_by_amg_not_a_second_facto
     assert np.linalg.norm(far @ x - b) <= 1e-8 * np.linalg.norm(b)
     assert solver.factor is given and solver.amg is not None and solver.amg.stats is solver.stats
     assert solver.stats.iterations[-1] > 1                       # CG iterations, not a direct solve
+    calls = given.calls
+    assert calls >= 25                                           # PCG was tried first
+    x = solver.solve(far, 2 * b, np.ones((A.shape[0], 1)), rtol=1e-8)
+    assert np.linalg.norm(far @ x - 2 * b) <= 2e-8 * np.linalg.norm(b) and given.calls == calls
     below = FactorPCG(factorize(A), maxiter=25, backend="superlu", amg_above=10**6)
     below.solve(far.tocsr(), b, rtol=1e-8)
     assert below.amg is None and below.factor is not None and below.stats.setups == 1   # factorised
