@@ -478,14 +478,14 @@ class FactorPCG:
         if self.factor is not None:
             M = spla.LinearOperator(A.shape, matvec=preconditioner(self.factor), dtype=np.float64)
             x, info, its = counted_cg(A, b, rtol, self.maxiter, M)
-        if (info != 0 or not np.isfinite(x).all()) and self.factor is not None and A.shape[0] > self.amg_above:
-            # too far from the given factor on a large system: AMG-CG, not a second factor beside
-            # the caller's (the paper-size face: 1.6 GB more at the cold frame's peak)
+        if info != 0 or not np.isfinite(x).all():   # no factor, or too far from it
             self.stats.solve_seconds += time.perf_counter() - t
-            self.amg = self.amg or AMGSolver(stats=self.stats)
-            return self.amg.solve(A, b, B, rtol)
-        if info != 0 or not np.isfinite(x).all():   # no factor, or too far from it: a factor of A
-            self.stats.solve_seconds += time.perf_counter() - t
+            if self.factor is not None and A.shape[0] > self.amg_above:
+                # too far from the given factor on a large system: AMG-CG, not a second factor
+                # beside the caller's (the paper-size face: 1.6 GB more at the cold frame's peak)
+                self.amg = AMGSolver(stats=self.stats)
+                return self.amg.solve(A, b, B, rtol)
+            # else a factor of A
             # a factor made here before is dropped first: two of them beside the caller's would
             # be 3 at once (the paper-size face: 1.9 GB each, the cold frame's peak 7.0 GB)
             self.factor = None
