@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -224,6 +225,7 @@ def _mkl_pardiso():
 
 REFINE_RTOL = 1e-10   # relative residual a PARDISO solve refines to (the face: one step from ~1e-6)
 REFINE_STEPS = 6
+SKETCH_ABOVE = 1e-8   # PardisoFactor.solve: tolerances above this check a many-column solve by a sketch first
 
 
 def _pardiso_error(error: int, spd: bool = False) -> str:
@@ -382,9 +384,16 @@ class PardisoFactor:
         preconditioner); :meth:`solve` then raises."""
         self.full = None
 
-    def solve(self, b) -> np.ndarray:
-        """``A^-1 b`` to double precision: refined until the relative residual is ``REFINE_RTOL``
-        (or stops halving) after a single-precision solve or a perturbed pivot."""
+    def solve(self, b, rtol: float = REFINE_RTOL) -> np.ndarray:
+        """``A^-1 b`` to double precision: refined until the relative residual is ``rtol`` (default
+        ``REFINE_RTOL``; or stops halving) after a single-precision solve or a perturbed pivot.
+
+        With several columns and ``rtol`` above ``SKETCH_ABOVE`` the single-precision solve is first
+        checked on one random combination of its columns, each scaled to unit right-hand side (one
+        matrix-vector product: the estimate's square is the columns' mean squared relative residual),
+        and kept when that is within ``rtol / sqrt(k)`` -- so no column's, in expectation, exceeds
+        ``rtol``. The paper-size tangent's 35 Jacobian columns: 2.2 s against 8 s refined
+        (benchmarks/RESULTS.md, session 25)."""
         b = np.asarray(b, dtype=np.float64)
         x = self.precondition(b)
         if not (self.single or self.perturbed):   # a perturbed pivot: the double factor is not exact either
@@ -393,11 +402,17 @@ class PardisoFactor:
             raise SolverError("linear solve: this PARDISO factor's matrix was released (release_matrix): "
                               "it only preconditions")
         size = np.maximum(np.linalg.norm(b, axis=0), 1e-300)
+        if b.ndim == 2 and b.shape[1] > 1 and rtol > SKETCH_ABOVE:
+            w = np.random.default_rng(0).standard_normal(b.shape[1]) / size
+            bw = b @ w
+            estimate = float(np.linalg.norm(bw - self.full @ (x @ w))) / max(float(np.linalg.norm(bw)), 1e-300)
+            if estimate <= rtol / np.sqrt(b.shape[1]):
+                return x
         last = np.inf
         for _ in range(REFINE_STEPS):
             r = b - self.full @ x
             worst = float((np.linalg.norm(r, axis=0) / size).max())
-            if worst <= REFINE_RTOL or worst >= 0.5 * last:   # there, or no longer converging
+            if worst <= rtol or worst >= 0.5 * last:   # there, or no longer converging
                 break
             x += self.precondition(r)
             last = worst
@@ -421,10 +436,12 @@ class DirectSolver:
         return self.lu
 
     def solve(self, A, b: np.ndarray, B=None, rtol: float = 0.0) -> np.ndarray:
+        """``A^-1 b`` by a new factorisation of ``A``: exact (SuperLU), or for PARDISO to the relative
+        residual ``rtol`` where that is above its refinement's ``REFINE_RTOL`` (0: that)."""
         lu = self.factorize(A)
         t = time.perf_counter()
         with single_blas_thread():
-            x = lu.solve(b)
+            x = lu.solve(b, rtol=max(rtol, REFINE_RTOL)) if isinstance(lu, PardisoFactor) else lu.solve(b)
         self.stats.solves += 1
         self.stats.iterations.append(1)
         self.stats.solve_seconds += time.perf_counter() - t
@@ -458,17 +475,42 @@ class FactorPCG:
     solves, or one factorisation -- not an AMG set-up and tens of V-cycles (benchmarks/RESULTS.md,
     session 22). The factor it makes is its own: ``factor`` is never changed. Above ``amg_above``
     unknowns (default :data:`FACTOR_PCG_AMG_ABOVE`) a step too far from the given factor is solved
-    by AMG-CG instead, and so are all later steps: the caller still holds that factor, and a
-    second one beside it set the paper-size face's peak memory."""
+    by AMG-CG instead, and so are all later steps: a second factor beside the caller's set the
+    paper-size face's peak memory -- unless the factor came from ``owner`` (an object whose
+    ``tangent`` attribute holds it, e.g. an :class:`~facesim.inverse.jacobian.EquilibriumJacobian`)
+    and dropping it there frees it: then that step is factorised after all (one factor at a time)
+    and the new factor becomes ``owner.tangent`` (its ``tangent_at``, if any, set to None: it was
+    made inside this solve), a nearer tangent for the owner's later chord solves. The paper-size
+    face's cold frame: the first trial's Newton 75-84 s by AMG-CG (benchmarks/RESULTS.md, session 25)."""
 
     def __init__(self, factor=None, maxiter: int = 25, backend: str | None = None,
-                 amg_above: int | None = None):
-        self.factor = factor
+                 amg_above: int | None = None, owner=None):
+        self.owner = owner
+        self.factor = owner.tangent if owner is not None and factor is None else factor
         self.maxiter = int(maxiter)
         self.backend = backend or ("pardiso" if pardiso_available() else "superlu")
         self.stats = LinearStats()
         self.amg_above = FACTOR_PCG_AMG_ABOVE if amg_above is None else int(amg_above)
         self.amg = None
+
+    def _release_owner(self) -> bool:
+        """Drop the given factor here and at ``owner``; True if that freed it (no one else holds
+        it), else both references are restored."""
+        if self.owner is None or getattr(self.owner, "tangent", None) is not self.factor:
+            return False
+        try:
+            ref = weakref.ref(self.factor)
+        except TypeError:   # a factor that takes no weak reference: its holders are unknown
+            return False
+        at = getattr(self.owner, "tangent_at", None)
+        self.factor = None
+        self.owner.tangent = None
+        if ref() is None:
+            if at is not None:
+                self.owner.tangent_at = None
+            return True
+        self.factor = self.owner.tangent = ref()
+        return False
 
     def solve(self, A, b: np.ndarray, B=None, rtol: float = 1e-8) -> np.ndarray:
         if self.amg is not None:   # the given factor was too far once: so it stays (the Newton moves on)
@@ -478,13 +520,17 @@ class FactorPCG:
         if self.factor is not None:
             M = spla.LinearOperator(A.shape, matvec=preconditioner(self.factor), dtype=np.float64)
             x, info, its = counted_cg(A, b, rtol, self.maxiter, M)
+            del M   # it holds the factor (its bound solve): not past here, where the factor may be freed
         if info != 0 or not np.isfinite(x).all():   # no factor, or too far from it
             self.stats.solve_seconds += time.perf_counter() - t
+            adopt = False
             if self.factor is not None and A.shape[0] > self.amg_above:
-                # too far from the given factor on a large system: AMG-CG, not a second factor
-                # beside the caller's (the paper-size face: 1.6 GB more at the cold frame's peak)
-                self.amg = AMGSolver(stats=self.stats)
-                return self.amg.solve(A, b, B, rtol)
+                adopt = self._release_owner()
+                if not adopt:
+                    # too far from the given factor on a large system: AMG-CG, not a second factor
+                    # beside the caller's (the paper-size face: 1.6 GB more at the cold frame's peak)
+                    self.amg = AMGSolver(stats=self.stats)
+                    return self.amg.solve(A, b, B, rtol)
             # else a factor of A
             # a factor made here before is dropped first: two of them beside the caller's would
             # be 3 at once (the paper-size face: 1.9 GB each, the cold frame's peak 7.0 GB)
@@ -495,6 +541,8 @@ class FactorPCG:
                 x = self.factor.solve(b)
             if hasattr(self.factor, "release_matrix"):   # from here on it only preconditions
                 self.factor.release_matrix()
+            if adopt:
+                self.owner.tangent = self.factor
             its += 1
         self.stats.solves += 1
         self.stats.iterations.append(its)

@@ -113,7 +113,7 @@ class FitOptions:
     jacobian_drift: float = 0.1
     chord: bool = True
     resolution: float = 1.5
-    jacobian_rtol: float = 1e-6   # CG tolerance per Jacobian column (AMG path; direct solves are exact)
+    jacobian_rtol: float = 1e-6   # CG tolerance per Jacobian column (AMG path; direct: DIRECT_COLUMN_RTOL)
     max_seconds: float | None = None
 
     def __post_init__(self):
@@ -309,7 +309,9 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     are missing markers), starting from ``controls`` and its equilibrium ``x0`` (solved if None).
 
     ``weights (r,)``: per-marker weights (default 1). ``jacobian``: the previous frame's
-    ``Fit.jacobian``; used when it was taken at ``controls`` and ``x0`` (else evaluated here).
+    ``Fit.jacobian``; used when it was taken at ``controls`` and ``x0`` (else evaluated here). Its
+    factorised ``tangent`` may be replaced by a nearer one (its ``tangent_at`` then None) where a
+    large face's trial equilibrium refactorises (:class:`~facesim.fem.linear.FactorPCG`'s ``owner``).
     ``screen``: outlier screening before any equilibrium, ``screen(P (r, 3)) -> marker indices``
     called once with the markers the first step's linear model predicts; the markers it names are
     dropped from the frame and listed in ``report.screened`` (a tracked frame's prediction is
@@ -380,14 +382,17 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     # recovery is the same for k = 1, 1.5 and 2 (marker RMS, activation and jaw errors).
     resolution = 0.5 * (options.resolution * options.noise) ** 2
 
-    def solve(ctrl, warm, tangent, previous=None):
+    def solve(ctrl, warm, source, previous=None):
         """Equilibrium of ``ctrl`` from ``warm`` (or from ``previous`` with the bones moved, when that
-        is nearer): chord iterations on ``tangent`` first, else Newton. Raises :class:`_OutOfTime`
-        when the fit's budget has run out (before, or during the solve)."""
+        is nearer): chord iterations on the factorised tangent of ``source`` (a Jacobian, or None)
+        first, else Newton. Raises :class:`_OutOfTime` when the fit's budget has run out (before,
+        or during the solve). The tangent is read from ``source`` here, not held: a Newton solve
+        that refactorises may free it and hand ``source`` its own (FactorPCG's ``owner``)."""
         if expired():
             raise _OutOfTime
-        if tangent is not None and options.chord:
-            xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, tangent, extra_terms, frame=frame,
+        chord = source is not None and source.tangent is not None and options.chord
+        if chord:
+            xc, its, solves, ok = near_equilibrium(sim, ctrl, warm, source.tangent, extra_terms, frame=frame,
                                                    previous=previous)
             rep.newton_iterations += its
             rep.chord_iterations += its
@@ -399,7 +404,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         try:
             # after the chord solve: Newton whose steps are preconditioned by the same factor, then
             # by a factorisation of their own where it is no longer near (FactorPCG)
-            linear = FactorPCG(tangent) if tangent is not None and options.chord else None
+            linear = FactorPCG(owner=source) if chord else None
             eq = sim.equilibrium(ctrl, x0=warm, extra_terms=extra_terms, frame=frame, linear=linear)
         except SolverError as exc:   # a failed trial: the line search treats it as an infinite objective
             rep.equilibria += 1
@@ -538,7 +543,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 break
             # the full step first, its equilibrium warm-started from the first-order prediction
             t = time.perf_counter()
-            x1 = solve(ctrl(c + dc), J.predict(dc[:nc]), J.tangent, x)
+            x1 = solve(ctrl(c + dc), J.predict(dc[:nc]), J, x)
             F1 = math.inf if x1 is None else objective(c + dc, x1, mu)
             clock["equilibria"] += time.perf_counter() - t
             rep.ratios.append((F - F1) / predicted)
@@ -547,7 +552,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 t = time.perf_counter()
                 alpha, F_new, x_new = _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options,
                                               (J.dP @ dc[:nc])[rows], functools.partial(motion, start=Ph), w3,
-                                              J.tangent)
+                                              J)
                 clock["line_search"] += time.perf_counter() - t
             elif J.age > 0:   # the model of an updated Jacobian failed: evaluate it here and step again
                 J = None
@@ -560,7 +565,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                     # the full step failed: one backtracking trial at the minimum of the parabola through
                     # F(0), F'(0) and F(1), kept on sufficient (Armijo) decrease
                     short = min(max(-slope / (2.0 * (F1 - F - slope)), 0.1), 0.9)
-                    xs = solve(ctrl(c + short * dc), J.predict(short * dc[:nc]), J.tangent)
+                    xs = solve(ctrl(c + short * dc), J.predict(short * dc[:nc]), J)
                     Fs = math.inf if xs is None else objective(c + short * dc, xs, mu)
                     cache[short] = (Fs, xs)
                     if Fs <= F + ARMIJO * short * slope:
@@ -613,7 +618,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     return Fit(final, x, P, rep, J, head_frame=None if head is None else head.matrix(c[nc:]))
 
 
-def _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options, linear, moved, w, tangent):
+def _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options, linear, moved, w, J):
     """Lengthen a kept full step where Gauss-Newton undershoots (muscles stiffen as they shorten,
     flesh against bone): the markers moved only a fraction ``phi(alpha)`` of the predicted motion
     ``linear = J dc`` (kept rows) along it. The step minimises ``|r + phi J dc|`` at ``phi = 1``, so
@@ -631,7 +636,7 @@ def _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options, linear, moved
         a2 = min(a1 + (1.0 - p1) * (a1 - a0) / (p1 - p0), options.max_step)
         if a2 <= a1 * EXTRAPOLATE_ABOVE:
             break
-        x2 = solve(ctrl(c + a2 * dc), xa1 + (a2 - a1) / (a1 - a0) * (xa1 - xa0), tangent)
+        x2 = solve(ctrl(c + a2 * dc), xa1 + (a2 - a1) / (a1 - a0) * (xa1 - xa0), J)
         F2 = math.inf if x2 is None else objective(c + a2 * dc, x2, mu)
         if F2 >= best[1]:
             break
@@ -658,7 +663,7 @@ def _golden_section(solve, objective, ctrl, c, dc, J, nc, mu, options, cache, hi
         else:
             t = (alpha - lo) / (hi - lo)
             warm = (1 - t) * cache[lo][1] + t * cache[hi][1]
-        xa = solve(ctrl(c + alpha * dc), warm, J.tangent)
+        xa = solve(ctrl(c + alpha * dc), warm, J)
         cache[alpha] = (math.inf, None) if xa is None else (objective(c + alpha * dc, xa, mu), xa)
         return cache[alpha][0]
 

@@ -34,11 +34,15 @@ import scipy.sparse as sp
 
 from facesim.controls import Controls
 from facesim.errors import FacesimError
-from facesim.fem.linear import counted_cg, make_linear_solver, pardiso_available, preconditioner, single_blas_thread
+from facesim.fem.linear import DirectSolver, counted_cg, make_linear_solver, pardiso_available, preconditioner, single_blas_thread
 from facesim.fem.newton import Problem
 from facesim.model import FaceModel
 
 DIRECT_BELOW = 150_000   # unknowns: SuperLU's fill stays within a few GB below this on face meshes
+#: relative residual of the columns a single-precision PARDISO factor's solve is kept at (no
+#: refinement; the face's tangents: ~1e-5 at most), estimated per solve (PardisoFactor.solve). A
+#: Gauss-Newton step needs far less (its linear model is off by ~0.1 where jacobian_drift says so)
+DIRECT_COLUMN_RTOL = 1e-4
 HEAD_NAMES = ("head_rx", "head_ry", "head_rz", "head_tx", "head_ty", "head_tz")
 
 
@@ -299,7 +303,8 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
     n_before = len(solver.stats.iterations)
     cols = slice(0, sj.stop)
     if sj.stop:
-        du = solver.solve_many(K, rhs[:, cols], system.rigid_modes(x), rtol=rtol)
+        du = solver.solve_many(K, rhs[:, cols], system.rigid_modes(x),
+                               rtol=DIRECT_COLUMN_RTOL if isinstance(solver, DirectSolver) else rtol)
         du[~system.free_dof] = 0.0
         rows = (3 * system.active[:, None] + np.arange(3)).ravel()
         dx[rows, cols] += du
@@ -333,6 +338,10 @@ CHORD_NEWTON_RTOL = 1e-2
 #: cut back to (each one gradient), before the solve is given up to a Newton solve with line search
 NEWTON_BACKTRACK = (0.5, 0.25, 0.125)
 CHORD_LOOKAHEAD = 3   # chord iterations worth one Newton step (assembly + a few preconditioned CG iterations)
+#: CG iterations a Newton step of :func:`near_equilibrium` may take on the factor of a nearby tangent
+#: before the solve is given up (as FactorPCG's ``maxiter``): was 50, and the paper-size face's cold
+#: first trial spent 25 s on one CG that failed at 50 (benchmarks/RESULTS.md, session 25)
+CHORD_NEWTON_MAXITER = 25
 
 
 def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_iterations: int = 8,
@@ -424,7 +433,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
                 du = inverse(-g)
                 solves += 1
             else:
-                du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL, 50, M)
+                du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL, CHORD_NEWTON_MAXITER, M)
                 solves += its
                 if info != 0:
                     return best, it, solves, False

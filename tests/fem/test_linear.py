@@ -140,6 +140,92 @@ def test_factor_pcg_on_a_large_system_solves_a_far_one_by_amg_not_a_second_facto
     assert below.amg is None and below.factor is not None and below.stats.setups == 1   # factorised
 
 
+class _Factor:
+    """A factor whose applications are counted (a Python object: it takes weak references)."""
+
+    def __init__(self, factor):
+        self.factor, self.calls = factor, 0
+
+    def solve(self, b):
+        self.calls += 1
+        return self.factor.solve(b)
+
+
+class _Owner:
+    """What FactorPCG's ``owner`` is: something whose ``tangent`` holds the factor."""
+
+    def __init__(self, tangent, tangent_at):
+        self.tangent, self.tangent_at = tangent, tangent_at
+
+
+def test_factor_pcg_frees_an_owned_far_factor_and_hands_its_own_back():
+    """Above ``amg_above``: a far factor held only by its ``owner`` is freed and this step
+    factorised after all (one factor at a time), the new factor becomes the owner's tangent (its
+    ``tangent_at`` cleared); a factor someone else still holds stays, and the step goes to AMG-CG."""
+    import weakref
+
+    from facesim.fem.linear import FactorPCG
+
+    n = 16
+    A = laplacian_3d(n)
+    b = np.random.default_rng(6).normal(size=A.shape[0])
+    one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    far = (A + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tocsr()
+    B = np.ones((A.shape[0], 1))
+
+    owner = _Owner(_Factor(factorize(A)), ("controls", "x", 0.0))
+    given = weakref.ref(owner.tangent)
+    solver = FactorPCG(owner=owner, maxiter=25, backend="superlu", amg_above=1000)
+    x = solver.solve(far, b, B, rtol=1e-8)
+    assert np.linalg.norm(far @ x - b) <= 1e-8 * np.linalg.norm(b)
+    assert given() is None                                           # the far factor was freed
+    assert solver.amg is None and solver.stats.setups == 1 and solver.stats.iterations[-1] == 26
+    assert owner.tangent is solver.factor and owner.tangent_at is None
+    x = solver.solve(far, 2 * b, B, rtol=1e-8)                       # its own factor: near
+    assert solver.stats.setups == 1 and solver.stats.iterations[-1] <= 2
+    assert np.linalg.norm(far @ x - 2 * b) <= 2e-8 * np.linalg.norm(b)
+
+    held = _Factor(factorize(A))                                     # the caller keeps a reference
+    owner = _Owner(held, ("controls", "x", 0.0))
+    solver = FactorPCG(owner=owner, maxiter=25, backend="superlu", amg_above=1000)
+    x = solver.solve(far, b, B, rtol=1e-8)
+    assert np.linalg.norm(far @ x - b) <= 1e-8 * np.linalg.norm(b)
+    assert solver.amg is not None and solver.stats.iterations[-1] > 1   # AMG-CG, not a direct solve
+    assert owner.tangent is held and solver.factor is held and owner.tangent_at == ("controls", "x", 0.0)
+
+
+def test_pardiso_many_columns_keep_the_single_solve_only_within_rtol():
+    """``solve(B, rtol)`` with many columns: the single-precision solve is kept where one random
+    combination of the columns says it is within ``rtol`` (no refinement), refined where one
+    column is off (a solve perturbed by 1e-3 in that column alone)."""
+    pytest.importorskip("pypardiso")
+    from facesim.fem.linear import PardisoFactor
+
+    rng = np.random.default_rng(7)
+    A = (laplacian_3d(10) + sp.diags(rng.uniform(0, 5, 1000))).tocsr()
+    B = rng.normal(size=(A.shape[0], 9)) * np.logspace(-3, 3, 9)    # columns of very different sizes
+    f = PardisoFactor(A)
+
+    def res(X):
+        return np.linalg.norm(A @ X - B, axis=0) / np.linalg.norm(B, axis=0)
+
+    X = f.solve(B, rtol=1e-4)
+    np.testing.assert_array_equal(X, f.precondition(B))              # kept as solved: no refinement
+    assert 1e-9 < res(X).max() < 1e-4
+    assert res(f.solve(B)).max() < 1e-10                             # default: refined to REFINE_RTOL
+    clean = f.precondition
+
+    def off(b):
+        x = clean(b)
+        if x.ndim == 2:
+            x[:, 4] *= 1 + 1e-3 * rng.normal(size=x.shape[0])
+        return x
+
+    f.precondition = off
+    assert res(off(B))[4] > 1e-4
+    assert res(f.solve(B, rtol=1e-4)).max() < 1e-4                   # caught and refined
+
+
 def test_pardiso_single_precision_factor_refines_to_double():
     """The single-precision factor: ``precondition`` to ~1e-6, ``solve`` (one refinement step in
     double) to ~1e-10 and better, one and many right-hand sides; a double factor solves exactly."""
