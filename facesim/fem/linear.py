@@ -392,7 +392,7 @@ class PardisoFactor:
         checked on one random combination of its columns, each scaled to unit right-hand side (one
         matrix-vector product: the estimate's square is the columns' mean squared relative residual),
         and kept when that is within ``rtol / sqrt(k)`` -- so no column's, in expectation, exceeds
-        ``rtol``. The paper-size tangent's 35 Jacobian columns: 2.2 s against 8 s refined
+        ``rtol``. The paper-size tangent's 35 Jacobian columns: 2.0 s against 8.1 s refined
         (benchmarks/RESULTS.md, session 25)."""
         b = np.asarray(b, dtype=np.float64)
         x = self.precondition(b)
@@ -503,11 +503,10 @@ class FactorPCG:
             ref = weakref.ref(self.factor)
         except TypeError:   # a factor that takes no weak reference: its holders are unknown
             return False
-        at = getattr(self.owner, "tangent_at", None)
         self.factor = None
         self.owner.tangent = None
         if ref() is None:
-            if at is not None:
+            if getattr(self.owner, "tangent_at", None) is not None:
                 self.owner.tangent_at = None
             return True
         self.factor = self.owner.tangent = ref()

@@ -16,6 +16,23 @@ def laplacian_3d(n):
             + sp.identity(n ** 3)).tocsr()
 
 
+def stiffer_along_x(n):
+    """``laplacian_3d(n)`` with its coupling along x 1000 times stiffer (CSR): far from its factor."""
+    one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    return (laplacian_3d(n) + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tocsr()
+
+
+class _Factor:
+    """A factor whose applications are counted (a Python object: it takes weak references)."""
+
+    def __init__(self, factor):
+        self.factor, self.calls = factor, 0
+
+    def solve(self, b):
+        self.calls += 1
+        return self.factor.solve(b)
+
+
 def test_factorize_solves_spd_and_symmetric_indefinite_systems():
     rng = np.random.default_rng(0)
     A = laplacian_3d(6)
@@ -91,9 +108,7 @@ def test_factor_pcg_uses_a_near_factor_and_refactorises_a_far_one(backend):
     assert solver.stats.setups == 0 and 1 <= solver.stats.iterations[-1] <= 6   # CG, no factorisation
     # far from the factor (the coupling along x 1000 times stiffer): one factorisation of this
     # matrix, an exact solve, and that factor kept for the next solves
-    n = 8
-    one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
-    far = (A + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tocsr()
+    far = stiffer_along_x(8)
     x = solver.solve(far, b, rtol=1e-10)
     np.testing.assert_allclose(far @ x, b, atol=1e-8 * np.abs(b).max())
     assert solver.stats.setups == 1 and solver.stats.iterations[-1] == 26   # 25 CG iterations, then direct
@@ -112,21 +127,11 @@ def test_factor_pcg_on_a_large_system_solves_a_far_one_by_amg_not_a_second_facto
     straight away (the given factor is not tried again)."""
     from facesim.fem.linear import FactorPCG
 
-    class Counting:   # the given factor, its applications counted
-        def __init__(self, factor):
-            self.factor, self.calls = factor, 0
-
-        def solve(self, b):
-            self.calls += 1
-            return self.factor.solve(b)
-
-    n = 16
-    A = laplacian_3d(n)   # 4,096 unknowns: above AMGSolver's direct_below
+    A = laplacian_3d(16)   # 4,096 unknowns: above AMGSolver's direct_below
     b = np.random.default_rng(4).normal(size=A.shape[0])
-    given = Counting(factorize(A))
+    given = _Factor(factorize(A))   # its applications counted
     solver = FactorPCG(given, maxiter=25, backend="superlu", amg_above=1000)
-    one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
-    far = (A + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tobsr(blocksize=(1, 1))
+    far = stiffer_along_x(16).tobsr(blocksize=(1, 1))
     x = solver.solve(far, b, np.ones((A.shape[0], 1)), rtol=1e-8)
     assert np.linalg.norm(far @ x - b) <= 1e-8 * np.linalg.norm(b)
     assert solver.factor is given and solver.amg is not None and solver.amg.stats is solver.stats
@@ -138,17 +143,6 @@ def test_factor_pcg_on_a_large_system_solves_a_far_one_by_amg_not_a_second_facto
     below = FactorPCG(factorize(A), maxiter=25, backend="superlu", amg_above=10**6)
     below.solve(far.tocsr(), b, rtol=1e-8)
     assert below.amg is None and below.factor is not None and below.stats.setups == 1   # factorised
-
-
-class _Factor:
-    """A factor whose applications are counted (a Python object: it takes weak references)."""
-
-    def __init__(self, factor):
-        self.factor, self.calls = factor, 0
-
-    def solve(self, b):
-        self.calls += 1
-        return self.factor.solve(b)
 
 
 class _Owner:
@@ -166,11 +160,9 @@ def test_factor_pcg_frees_an_owned_far_factor_and_hands_its_own_back():
 
     from facesim.fem.linear import FactorPCG
 
-    n = 16
-    A = laplacian_3d(n)
+    A = laplacian_3d(16)
     b = np.random.default_rng(6).normal(size=A.shape[0])
-    one = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
-    far = (A + 999.0 * sp.kron(sp.kron(one, sp.identity(n)), sp.identity(n))).tocsr()
+    far = stiffer_along_x(16)
     B = np.ones((A.shape[0], 1))
 
     owner = _Owner(_Factor(factorize(A)), ("controls", "x", 0.0))
