@@ -2,13 +2,16 @@
 each warm-started from the previous fit, its equilibrium and its Jacobian.
 
     python benchmarks/bench_inverse.py [--model meshes/face_coarse.npz --model meshes/face_medium.npz]
-        [--frames 6] [--threads 2] [--compare] [--verbose]
+        [--frames 6] [--threads 2] [--compare] [--verbose] [--coarse COARSE.npz]
 
 Synthetic capture: a smile with eye squint and lower-lip depressor whose activations change by
 0.06 / 0.03 per frame and a jaw opening by 0.01 rad per frame on the natural sliding-condyle
 path, sampled at the model's markers with 0.5 mm Gaussian noise per coordinate. All activations
 and the three jaw parameters are solved for. ``--model`` takes any model file, e.g. a paper
-model from ``facesim model build --resolution paper``.
+model from ``facesim model build --resolution paper``. ``--coarse COARSE.npz`` fits the cold frame
+coarse-to-fine (:class:`facesim.inverse.coarse.CoarseStart`: on that coarser model of the same
+face first, e.g. the one a paper model was refined from); its row is ``cold c2f`` and its set-up
+(loading the coarse model, binding the markers, locating the nodes) is printed apart.
 
 Prints per model and frame kind (cold, tracked): tets (simulated), unknowns, seconds per frame
 split into equilibria (start + each step's first trial), Jacobian (evaluations + secant
@@ -64,7 +67,8 @@ def _truth(model, jaw, k: int, step: float):
     return Controls(a, jaw=jaw.natural_parameters(0.05 + 0.01 * s))
 
 
-def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool, **fit_options) -> list[dict]:
+def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool, coarse: str | None = None,
+              **fit_options) -> list[dict]:
     from facesim.controls import Controls
     from facesim.fem.equilibrium import FaceSimulator
     from facesim.inverse import ControlSpace, FitOptions, fit_frame
@@ -108,14 +112,27 @@ def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool,
         rows.append(row)
         if verbose:
             print(f"  {kind:>8} frame {k}: {seconds:6.2f} s  " + "  ".join(f"{key} {r.timing[key]:.2f}" for key in KEYS)
+                  + (f"  coarse {r.timing['coarse']:.2f}" if "coarse" in r.timing else "")
                   + f"  steps {r.gn_steps} eq {r.equilibria} newton {r.newton_iterations} chord {r.chord_iterations}"
                   f" jac {r.jacobians} alpha {np.round(r.step_lengths, 2).tolist()}"
                   f" ratio {np.round(r.ratios, 2).tolist()}"
                   f" objective {np.round(r.objective, 3).tolist()} rms {r.marker_rms:.3f}", flush=True)
 
-    t = time.perf_counter()
-    fit = fit_frame(sim, targets[0], neutral, None, space, options)
-    record("cold", 0, fit, time.perf_counter() - t)
+    if coarse:   # the cold frame coarse-to-fine (facesim.inverse.coarse); set-up timed on its own
+        from facesim.inverse.coarse import CoarseStart
+
+        t = time.perf_counter()
+        c2f = CoarseStart(sim, load_model(coarse), name=coarse)
+        print(f"  coarse start from {Path(coarse).name} ({c2f.sim.system.n_dofs:,} unknowns): set-up "
+              f"{time.perf_counter() - t:.1f} s", flush=True)
+        t = time.perf_counter()
+        fit = c2f.fit_frame(targets[0], neutral, space, options)
+        record("cold c2f", 0, fit, time.perf_counter() - t)
+        del c2f
+    else:
+        t = time.perf_counter()
+        fit = fit_frame(sim, targets[0], neutral, None, space, options)
+        record("cold", 0, fit, time.perf_counter() - t)
     for k in range(1, frames + 1):
         start = fit
         t = time.perf_counter()
@@ -133,7 +150,7 @@ def _mean(rows: list[dict], key: str) -> float:
 
 
 def summarise(rows: list[dict]) -> None:
-    head = (f"{'model':<18} {'kind':<8} {'frames':>6} {'tets (sim)':>17} {'unknowns':>9} {'s/frame':>8} "
+    head = (f"{'model':<18} {'kind':<9} {'frames':>6} {'tets (sim)':>17} {'unknowns':>9} {'s/frame':>8} "
             f"{'equil s':>8} {'jacob s':>8} {'algebra s':>9} {'search s':>9} {'GN steps':>8} {'1-step':>6} "
             f"{'equil':>6} {'newton':>6} {'chord':>6} {'jacob':>6} {'RMS mm':>7} {'act err':>7} {'peak MB':>8}")
     print(head)
@@ -142,7 +159,7 @@ def summarise(rows: list[dict]) -> None:
         groups.setdefault((r["model"], r["kind"]), []).append(r)
     for (name, kind), g in groups.items():
         mean = functools.partial(_mean, g)
-        print(f"{name:<18} {kind:<8} {len(g):>6} {g[0]['tets']:>8,} ({g[0]['simulated']:>6,}) {g[0]['unknowns']:>9,} "
+        print(f"{name:<18} {kind:<9} {len(g):>6} {g[0]['tets']:>8,} ({g[0]['simulated']:>6,}) {g[0]['unknowns']:>9,} "
               f"{mean('seconds'):>8.2f} {mean('equilibria'):>8.2f} {mean('jacobian'):>8.2f} {mean('algebra'):>9.2f} "
               f"{mean('line_search'):>9.2f} {mean('gn_steps'):>8.2f} "
               f"{sum(r['gn_steps'] <= 1 for r in g):>3}/{len(g):<2} "
@@ -161,6 +178,8 @@ def main(argv=None):
     ap.add_argument("--jacobian-max-age", type=int, default=None, help="FitOptions.jacobian_max_age")
     ap.add_argument("--jacobian-drift", type=float, default=None, help="FitOptions.jacobian_drift")
     ap.add_argument("--resolution", type=float, default=None, help="FitOptions.resolution")
+    ap.add_argument("--coarse", default=None, metavar="MODEL",
+                    help="fit the cold frame on this coarser model of the same face first (facesim.inverse.coarse)")
     ap.add_argument("--linear-solver", choices=("direct", "pardiso", "amg"), default=None,
                     help="the Jacobian's linear solver (default: PARDISO if installed, else SuperLU / AMG by size)")
     args = ap.parse_args(argv)
@@ -176,7 +195,7 @@ def main(argv=None):
     print(f"numba threads {numba.get_num_threads()}, cores {os.cpu_count()}, load average {load0:.2f}", flush=True)
     rows = []
     for path in args.model or [str(ROOT / "meshes" / "face_coarse.npz")]:
-        rows += run_model(path, args.frames, args.step, args.compare, args.verbose, **fit_options)
+        rows += run_model(path, args.frames, args.step, args.compare, args.verbose, coarse=args.coarse, **fit_options)
     print(f"load average at the end {os.getloadavg()[0]:.2f} (1 min)")
     summarise(rows)
 

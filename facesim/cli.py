@@ -536,7 +536,8 @@ def cmd_solve_mocap(args) -> int:
                            robust=not args.no_robust, loss=args.loss, loss_scale=args.loss_scale,
                            chunk_size=args.chunk_size, head_smoothing=args.head_smoothing,
                            write_meshes=args.write_meshes,
-                           jaw_prior=_jaw_prior(args, model if layout is None else layout.markers, spec))
+                           jaw_prior=_jaw_prior(args, model if layout is None else layout.markers, spec),
+                           coarse_model=_coarse_model(args, spec, layout))
     parallel = args.workers is not None or args.scheduler is not None
     if layout is not None and parallel:
         raise FacesimError("--workers/--scheduler: not yet supported with the capture's own marker layout; "
@@ -546,6 +547,7 @@ def cmd_solve_mocap(args) -> int:
         s = track(solver, frames, P, args.output, options=options, resume=args.resume, overwrite=args.overwrite,
                   progress=not args.quiet, client=client, neutral=neutral,
                   info={"model": str(args.model), "markers": str(args.markers), "jaw_model": args.jaw_model,
+                        **({"coarse_model": str(args.coarse_model)} if args.coarse_model else {}),
                         "frames": args.frames, "bind_frames": args.bind_frames, "units": args.units},
                   fps=data.rate or 30.0, output_frame=frame or "facesim")
     plot_track(args.output)
@@ -569,6 +571,22 @@ def cmd_solve_mocap(args) -> int:
           f"-> {args.output}")
     _warn_unconverged(s, Path(args.output) / "frames.csv")
     return 0
+
+
+def _coarse_model(args, spec, layout) -> str | None:
+    """``--coarse-model``'s path, checked here against the model (same muscles and jaw, its mesh
+    covering the model's, the markers placeable on its skin) so a mismatch fails before any frame."""
+    if args.coarse_model is None:
+        return None
+    from facesim.inverse.coarse import CoarseStart
+    from facesim.mocap.binding import with_markers
+
+    if Path(args.coarse_model).resolve() == Path(args.model).resolve():
+        raise FacesimError(f"--coarse-model: {args.coarse_model} is the model itself; name a coarser model of "
+                           "the same face (e.g. the one it was refined from with 'model build --refine')")
+    sim = spec.build() if layout is None else with_markers(spec.build(), layout.markers)
+    CoarseStart(sim, _load(args.coarse_model), name=args.coarse_model)
+    return str(args.coarse_model)
 
 
 def _capture_layout(args, matched: int) -> bool:
@@ -1068,6 +1086,11 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--jaw-prior-sigma", type=_positive(100.0, "a distance"), default=1.0, metavar="MM",
                        help="the prior's standard deviation per predicted mandible point coordinate, mm (default: "
                             "%(default)s; against the markers' --noise)")
+    solve.add_argument("--coarse-model", metavar="COARSE.npz",
+                       help="a coarser model of the same face (the same muscles and jaw; e.g. the model a paper-size "
+                            "one was refined from): each cold frame (the first, a chunk's first) is fitted on it "
+                            "first and refined on --model from there -- the paper-size face's cold frame in a "
+                            "third of the time (benchmarks/RESULTS.md); tracked frames are unchanged")
     solve.add_argument("--max-steps", type=_count(1, 1000), default=5,
                        help="Gauss-Newton steps per frame (default: %(default)s)")
     solve.add_argument("--no-robust", action="store_true",

@@ -51,14 +51,15 @@ def _surface(name, bone, mesh):
     return RigidSurface(name, bone, np.asarray(mesh.vertices), np.asarray(mesh.faces))
 
 
-def make_box_model() -> FaceModel:
+def make_box_model(shape=(6, 5, 4), spacing=10.0) -> FaceModel:
     """A 60 x 50 x 40 mm flesh box (720 tets) with two muscles, 6 markers, bones and colliders.
 
     Nose along +z, up along +y, subject's left along +x. The back two node layers with y >= 0
     are attached to the cranium (tets there are not simulated), the back layer with y < 0 to
-    the jaw.
+    the jaw. ``shape`` and ``spacing``: the same box meshed finer (every region is defined in mm),
+    e.g. ``(12, 10, 8), 5.0``.
     """
-    X, tets = box_tets()
+    X, tets = box_tets(shape, spacing)
     centroid = X[tets].mean(axis=1)
     cranium = np.flatnonzero((X[:, 2] <= -10) & (X[:, 1] >= 0))
     jaw = np.flatnonzero((X[:, 2] <= -20) & (X[:, 1] < 0))

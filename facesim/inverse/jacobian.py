@@ -239,7 +239,7 @@ def default_jacobian_solver(n_dofs: int) -> str:
 
 def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None = None, extra_terms=(),
                          linear_solver: str | None = None, rtol: float = 1e-10,
-                         frame: float = 0.0) -> EquilibriumJacobian:
+                         frame: float = 0.0, tangent=None, tangent_at: tuple | None = None) -> EquilibriumJacobian:
     """Implicit Jacobian of the equilibrium ``x (n, 3)`` of ``sim`` (a
     :class:`~facesim.fem.equilibrium.FaceSimulator`) at ``controls``.
 
@@ -249,12 +249,21 @@ def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None 
     terms enter the tangent ``K`` with their stiffness like any other term. ``linear_solver``:
     ``"direct"`` (SuperLU), ``"pardiso"`` or ``"amg"`` (default: :func:`default_jacobian_solver` --
     one factorisation serves all columns and beats ~20 CG iterations per column where it fits).
-    ``rtol``: CG tolerance per column."""
+    ``rtol``: CG tolerance per column.
+
+    ``tangent``: a factorised tangent assembled near ``x`` (at ``tangent_at = (controls, x,
+    frame)``), e.g. the one a trial equilibrium was solved with: the columns are then solved with
+    it (one solve, no assembly or factorisation) instead of with the tangent at ``x``, so they
+    are first-order accurate in the distance between the two; the Jacobian carries ``age`` 1,
+    like a secant-updated one (:func:`~facesim.inverse.gauss_newton.fit_frame` evaluates an exact
+    one where its model fails)."""
     with single_blas_thread():   # BLAS work here is vector-sized: threads only add contention
-        return _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, rtol, frame)
+        return _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, rtol, frame, tangent,
+                                     tangent_at)
 
 
-def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, rtol, frame):
+def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, rtol, frame, given=None,
+                          given_at=None):
     t0 = time.perf_counter()
     model = sim.model
     space = space or ControlSpace.of(sim)
@@ -268,7 +277,7 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
     terms = sim.terms + extras(controls)
     system = sim.system
     prob = Problem(terms, system, x, controls.a)
-    K = prob.hessian(x, project=False)
+    K = prob.hessian(x, project=False) if given is None else None
     t_assembly = time.perf_counter() - t0
 
     sa, sj, sh = space.slices()
@@ -303,8 +312,12 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
     n_before = len(solver.stats.iterations)
     cols = slice(0, sj.stop)
     if sj.stop:
-        du = solver.solve_many(K, rhs[:, cols], system.rigid_modes(x),
-                               rtol=DIRECT_COLUMN_RTOL if isinstance(solver, DirectSolver) else rtol)
+        if given is not None:
+            du = preconditioner(given)(rhs[:, cols])
+            solver.stats.iterations.append(1)
+        else:
+            du = solver.solve_many(K, rhs[:, cols], system.rigid_modes(x),
+                                   rtol=DIRECT_COLUMN_RTOL if isinstance(solver, DirectSolver) else rtol)
         du[~system.free_dof] = 0.0
         rows = (3 * system.active[:, None] + np.arange(3)).ravel()
         dx[rows, cols] += du
@@ -319,14 +332,15 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
             view[:, j, sh.start + 3 + j] = 1.0
     dP = marker_jacobian(model, x) @ dx
     t2 = time.perf_counter()
-    tangent = getattr(solver, "lu", None)
+    tangent = getattr(solver, "lu", None) if given is None else given
     if hasattr(tangent, "release_matrix"):   # kept for chord iterations and preconditioning only
         tangent.release_matrix()
+    at = given_at if given is not None else None if tangent is None else (controls, x, frame)
     return EquilibriumJacobian(space, controls, x, dx, dP,
                                seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
                                         "total": t2 - t0},
                                linear_iterations=list(solver.stats.iterations[n_before:]),
-                               tangent=tangent, tangent_at=None if tangent is None else (controls, x, frame))
+                               tangent=tangent, tangent_at=at, age=0 if given is None else 1)
 
 
 # CG tolerance of the Newton steps after the chord iterations. Was 0.1 tol / |g| (a linear solve

@@ -86,7 +86,7 @@ from pathlib import Path
 import numpy as np
 
 from facesim._files import atomic_write
-from facesim.budget import TIME_LIMIT, time_budget
+from facesim.budget import TIME_LIMIT, expired, time_budget
 from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.framelog import FrameLog, csv_line, read_lines
@@ -127,7 +127,10 @@ class TrackOptions:
     transforms over this many frames (odd, >= 3; 0: off; see :func:`facesim.mocap.stabilise.stabilise`);
     write_meshes : also write each frame's skin and state as ``simulate`` does (the module doc);
     jaw_prior : a :class:`~facesim.inverse.jaw_prior.JawPrior`: each frame's jaw predicted from its
-    markers starts a cold frame and is a prior of every frame's jaw parameters (None: none)."""
+    markers starts a cold frame and is a prior of every frame's jaw parameters (None: none);
+    coarse_model : path of a coarser model of the same face: a cold frame (a chunk's first, or one
+    after a failed frame) is fitted on it first and refined on the full model
+    (:mod:`facesim.inverse.coarse`; None: cold frames on the full model alone)."""
 
     fit: FitOptions = FitOptions()
     head: str = "procrustes"
@@ -141,6 +144,7 @@ class TrackOptions:
     head_smoothing: int = 0
     write_meshes: bool = False
     jaw_prior: object = None
+    coarse_model: str | None = None
 
     def __post_init__(self):
         if self.head not in HEAD_MODES:
@@ -192,15 +196,14 @@ def fit_markers(sim, targets, controls: Controls, x0=None, space: ControlSpace |
 
 
 def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacobian, frame, head_frame=None,
-                 prior=None):
+                 prior=None, coarse=None):
     """:func:`fit_markers` (the module doc); ``prior``: the frame's jaw prior rows
-    (:class:`~facesim.inverse.jaw_prior.PriorRows`) or None."""
+    (:class:`~facesim.inverse.jaw_prior.PriorRows`) or None; ``coarse``: a
+    :class:`~facesim.inverse.coarse.CoarseStart` a cold frame (no ``x0``) is fitted on first, with
+    the same loss and outlier handling, then refined here from its result (its fits come first in
+    the fits returned)."""
     fits: list[Fit] = []
     targets = np.asarray(targets, dtype=np.float64)
-    # a tracked frame (one with the previous frame's Jacobian) screens for outliers on the first
-    # step's linear prediction, which lands close to the fit: the outliers then cost no refit
-    screen = functools.partial(_outliers, target=targets, options=options) \
-        if options.robust and jacobian is not None else None
 
     def fit_from(target, c, x, J, weights=None, screen=None, head=None):
         fit = fit_frame(sim, target, c, x, space, options.fit, weights=weights, jacobian=J, screen=screen,
@@ -223,6 +226,13 @@ def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacob
 
     # the frame's wall-clock budget covers all its fits (an inner fit's budget cannot extend it)
     with time_budget(options.fit.max_seconds):
+        if coarse is not None and x0 is None:
+            controls, x0, jacobian, head_frame = _coarse_first(coarse, targets, controls, space, options, frame,
+                                                               head_frame, prior, fits)
+        # a tracked frame (one with the previous frame's Jacobian) screens for outliers on the first
+        # step's linear prediction, which lands close to the fit: the outliers then cost no refit
+        screen = functools.partial(_outliers, target=targets, options=options) \
+            if options.robust and jacobian is not None else None
         fit = solve(targets, controls, x0, jacobian, screen)
         if fit.report.stop_reason == "equilibrium_failed" or not fit.equilibrium:
             return fit, [], fits
@@ -232,6 +242,32 @@ def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacob
             cleaned[outliers] = np.nan
             fit = solve(cleaned, fit.controls, fit.x, fit.jacobian)
     return fit, outliers, fits
+
+
+def _coarse_first(coarse, targets, controls, space, options: TrackOptions, frame, head_frame, prior, fits):
+    """A cold frame's start from the coarse model (:class:`~facesim.inverse.coarse.CoarseStart`):
+    its fit (the tracker's, with the loss and outlier refit) and the refinement to the full model.
+    Appends the fits made to ``fits`` (the refinement as a fit of no steps) and returns the full
+    model's ``(controls, x0, jacobian, head_frame)`` -- ``x0`` and ``jacobian`` None, and the
+    original ``controls`` and ``head_frame``, where the coarse fit or the refinement failed."""
+    cfit, _, cfits = _fit_markers(coarse.sim, targets, coarse.down(controls), None, coarse.space(space), options,
+                                  None, frame, head_frame, prior)
+    fits.extend(cfits)
+    if cfit.report.stop_reason == "equilibrium_failed" or not cfit.equilibrium or expired():
+        return controls, None, None, head_frame
+    ctrl, x, J, rep = coarse.refine(cfit.controls, cfit.x, space, options.fit, frame=frame)
+    head = cfit.head_frame if cfit.head_frame is not None else head_frame
+    if x is None:
+        return controls, None, None, head_frame
+    P = _in_capture(coarse.fine_sim.model, x, head)
+    fits.append(Fit(ctrl, x, P, rep, J, head_frame=head))
+    return ctrl, x, J, head
+
+
+def _in_capture(model, x, head) -> np.ndarray:
+    """Marker positions of ``x`` in the capture's frame (moved by the 4x4 ``head`` when solved)."""
+    P = model.marker_positions(x)
+    return P if head is None else P @ head[:3, :3].T + head[:3, 3]
 
 
 def _tangent(sim, options: TrackOptions, at) -> object:
@@ -298,13 +334,17 @@ def _solve_frame(sim, space, options, target, k: int, i: int, start: _Start) -> 
     prior = None
     if options.jaw_prior is not None:
         controls, prior = _with_prior(sim, space, options, target, head, controls, x)
+    coarse = None
+    if options.coarse_model is not None and x is None and jacobian is None:
+        from facesim.inverse.coarse import coarse_start_for
+
+        coarse = coarse_start_for(sim, options.coarse_model)
     try:
-        fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k, head, prior)
+        fit, outliers, fits = _fit_markers(sim, target, controls, x, space, options, jacobian, k, head, prior,
+                                           coarse)
     except SolverError as exc:
         attached = sim.attached_positions(controls, x)
-        P = model.marker_positions(attached)
-        if head is not None:
-            P = P @ head[:3, :3].T + head[:3, 3]
+        P = _in_capture(model, attached, head)
         rep = FitReport(stop_reason="equilibrium_failed", error=" ".join(str(exc).split()))
         fit, outliers, fits = Fit(controls, attached, P, rep, None, equilibrium=False, head_frame=head), [], []
     rep = fit.report
@@ -617,7 +657,8 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         chunk = options.chunk_size or (_recorded_chunk(folder.previous) if resume else None) or \
             math.ceil(len(frames) / max(n_workers, 1)) or 1
         # write_meshes is recorded only when on: a run of an older facesim (without it) still resumes
-        skip = () if options.write_meshes else ("write_meshes",)
+        skip = (() if options.write_meshes else ("write_meshes",)) + \
+            (() if options.coarse_model else ("coarse_model",))   # likewise
         record["options"] = describe(dataclasses.replace(options, chunk_size=chunk), UNRECORDED + skip)
         folder.start(record, functools.partial(_holds_a_run, folder.root), functools.partial(_clear, folder.root),
                      info=info)

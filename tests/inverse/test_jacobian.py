@@ -89,6 +89,34 @@ def test_face_marker_jacobian_against_full_equilibria(face_model):
     assert err.max() < 1e-4, err
 
 
+def test_a_jacobian_solved_with_a_given_nearby_tangent(box_model):
+    """``tangent=``: the columns solved with a factor assembled elsewhere -- the exact Jacobian
+    when that is this equilibrium's tangent, first-order close when it is a nearby one; age 1."""
+    from facesim.fem.linear import DirectSolver
+    from facesim.fem.newton import Problem
+
+    sim = FaceSimulator(box_model, EquilibriumOptions(newton=TIGHT), jaw_model=SlidingCondyleJaw(box_model.jaw))
+    controls = Controls([0.4, 0.3], jaw=[0.1, 2.0, 1.0])
+    x = sim.equilibrium(controls).x
+    space = ControlSpace.of(sim)
+    exact = equilibrium_jacobian(sim, controls, x, space, linear_solver="direct")
+
+    def given(c, at):
+        K = Problem(sim.terms, sim.system, at, c.a).hessian(at, project=False)
+        return DirectSolver().factorize(K)
+
+    here = equilibrium_jacobian(sim, controls, x, space, tangent=given(controls, x), tangent_at=(controls, x, 0.0))
+    np.testing.assert_allclose(here.dP, exact.dP, atol=1e-8 * np.abs(exact.dP).max())
+    assert here.age == 1 and exact.age == 0 and here.tangent_at[1] is x
+    errors = []
+    for step in (0.1, 0.05):   # the tangent of a nearby equilibrium: the error shrinks with the distance
+        near = Controls([0.4 - step, 0.3 + step], jaw=[0.1, 2.0, 1.0])
+        xn = sim.equilibrium(near, x0=x).x
+        J = equilibrium_jacobian(sim, controls, x, space, tangent=given(near, xn), tangent_at=(near, xn, 0.0))
+        errors.append(np.linalg.norm(J.dP - exact.dP) / np.linalg.norm(exact.dP))
+    assert 0 < errors[1] < 0.7 * errors[0] and errors[0] < 0.2, errors
+
+
 def test_control_space_errors(box_model):
     with pytest.raises(FacesimError, match="distinct and in"):
         ControlSpace(2, (0, 0))

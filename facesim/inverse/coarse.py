@@ -1,0 +1,279 @@
+"""Coarse-to-fine cold frames: fit a frame that has no previous frame to start from on a coarser
+model of the same face first, then carry the fit to the full model and finish it there.
+
+A cold frame of a large face costs several factorisations of its tangent: a Jacobian for each
+Gauss-Newton step from the neutral face and trial equilibria whose Newton solves start far from
+the answer (the paper-size face: 214 s, benchmarks/RESULTS.md session 25). On a coarser model of
+the same face the same fit costs a few seconds and lands close: :class:`CoarseStart` then
+
+1. prolongs the coarse equilibrium to the fine nodes (barycentric interpolation of the coarse
+   displacement in the coarse rest mesh; exact when the fine mesh refines the coarse one),
+2. factorises the fine tangent there once and solves the fine equilibrium of the coarse controls
+   by Newton with CG preconditioned by that factor (:class:`~facesim.fem.linear.FactorPCG`),
+3. takes the fine Jacobian's columns with the same factor (first-order accurate: ``age`` 1, so the
+   fit evaluates an exact one where its linear model fails), and
+4. hands controls, equilibrium and Jacobian to :func:`~facesim.inverse.gauss_newton.fit_frame` as a
+   tracked frame's start: the fit then usually needs one step.
+
+The coarse model must be of the same face: the same muscles (by name), the jaw joint within
+``JAW_TOL_MM`` and its mesh covering the fine one's nodes. It is adapted to the fine model: the
+fine markers are bound to its skin at their rest positions (so the two need not share a marker
+layout: a capture's own layout bound to the fine model carries over), and it takes the fine
+model's tissue table and muscle strengths (matched by name), the simulator's options, jaw model
+and muscle gains.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import weakref
+
+import numpy as np
+
+from facesim.controls import Controls
+from facesim.errors import FacesimError
+from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
+from facesim.inverse.jacobian import ControlSpace, default_jacobian_solver, equilibrium_jacobian
+from facesim.model import FaceModel
+
+#: fine nodes up to this far outside the coarse mesh take the values of its nearest tet's closest point
+COARSE_SNAP_MM = 2.0
+#: the fraction of the fine model's nodes that may lie farther than ``COARSE_SNAP_MM`` outside the
+#: coarse mesh (they take their nearest coarse node's displacement) before the models are refused
+COARSE_OUTSIDE_FRACTION = 0.01
+#: the jaw joints (condyles, incisor) of the two models may differ by this much, mm
+JAW_TOL_MM = 1.0
+#: the refinement's Jacobian from a factorisation at the fine equilibrium (True) or from the factor
+#: of the prolonged start, which its Newton solve used (False: one factorisation fewer)
+EXACT_JACOBIAN = False
+#: CG iterations a Newton step of the refinement may take on the prolonged start's factor before
+#: FactorPCG factorises that step's matrix instead (whose factor then serves the Jacobian and the
+#: fit: nearer its equilibrium than the start's)
+REFINE_CG_MAXITER = 10
+
+
+def _joint_points(model: FaceModel) -> dict[str, np.ndarray]:
+    j = model.jaw
+    return {"condyle_right": np.asarray(j.condyle_right, float), "condyle_left": np.asarray(j.condyle_left, float),
+            "incisor": np.asarray(j.incisor, float)}
+
+
+class CoarseStart:
+    """The coarse model ``coarse`` (a :class:`~facesim.model.FaceModel`) adapted to the simulator
+    ``sim`` of the full model (see the module doc); ``name`` names it in errors (e.g. the file).
+    Raises :class:`~facesim.errors.FacesimError` when the two are not models of the same face.
+
+    ``sim``: the coarse :class:`~facesim.fem.equilibrium.FaceSimulator`; ``order[k]``: the coarse
+    muscle of fine muscle ``k``."""
+
+    def __init__(self, sim, coarse: FaceModel, name: str = "coarse model"):
+        from facesim.fem.equilibrium import FaceSimulator
+        from facesim.importing.template import _TetLocator
+        from facesim.mocap.layout import bind_layout
+
+        fine = sim.model
+        self.fine_sim = sim
+        self.name = name
+        fnames, cnames = list(fine.muscles.names), list(coarse.muscles.names)
+        missing = [n for n in fnames if n not in cnames]
+        extra = [n for n in cnames if n not in fnames]
+        if missing or extra:
+            what = "; ".join(s for s in (f"missing {', '.join(missing[:5])}" if missing else "",
+                                         f"not in the model: {', '.join(extra[:5])}" if extra else "") if s)
+            raise FacesimError(f"{name}: its muscles are not the model's ({what}); a coarse start needs a model "
+                               "of the same face")
+        order = np.array([cnames.index(n) for n in fnames], dtype=np.int64)
+        fp, cp = _joint_points(fine), _joint_points(coarse)
+        for key in fp:
+            d = float(np.linalg.norm(fp[key] - cp[key]))
+            if not d <= JAW_TOL_MM:
+                raise FacesimError(f"{name}: its jaw {key.replace('_', ' ')} is {d:.2f} mm from the model's "
+                                   f"(at most {JAW_TOL_MM:g} mm): not a model of the same face")
+        locator = _TetLocator(coarse.X, coarse.tets, COARSE_SNAP_MM)
+        tet, bary = locator.locate(fine.X)
+        outside = np.flatnonzero(tet < 0)
+        if len(outside) > COARSE_OUTSIDE_FRACTION * fine.n_nodes:
+            raise FacesimError(f"{name}: {len(outside):,} of the model's {fine.n_nodes:,} nodes lie more than "
+                               f"{COARSE_SNAP_MM:g} mm outside its mesh: not a model of the same face (or not in "
+                               "the same units and frame)")
+        if len(outside):   # a few beyond the snap: their nearest coarse node's displacement
+            from scipy.spatial import cKDTree
+
+            near = cKDTree(coarse.X).query(fine.X[outside])[1]
+            tet[outside] = 0
+            bary[outside] = 0.0
+        self._tets = coarse.tets[np.maximum(tet, 0)]
+        self._bary = bary
+        self._outside, self._near = outside, (near if len(outside) else np.zeros(0, np.int64))
+        tissues = {t.name: t for t in fine.tissues}
+        absent = [t.name for t in coarse.tissues if t.name not in tissues]
+        if absent:
+            raise FacesimError(f"{name}: its tissues {', '.join(absent)} are not in the model's tissue table "
+                               f"({', '.join(tissues)})")
+        sigma = np.array(coarse.muscles.sigma_max, dtype=np.float64)
+        sigma[order] = fine.muscles.sigma_max
+        P = fine.marker_positions(fine.X)
+        heads = [n for n, h in zip(fine.markers.names, fine.markers.head) if h]
+        try:
+            markers, _, rejected = bind_layout(coarse, fine.markers.names, P, head_names=heads)
+        except FacesimError as exc:
+            raise FacesimError(f"{name}: the model's markers cannot be placed on its skin ({exc})") from None
+        if rejected:
+            raise FacesimError(f"{name}: the model's markers cannot all be placed on its skin ("
+                               + "; ".join(f"{k}: {v}" for k, v in list(rejected.items())[:3]) + ")")
+        model = coarse.with_(markers=markers, tissues=tuple(tissues[t.name] for t in coarse.tissues),
+                             muscles=dataclasses.replace(coarse.muscles, sigma_max=sigma))
+        gain = np.ones(model.n_muscles)
+        gain[order] = sim.muscle.gain
+        self.sim = FaceSimulator(model, options=sim.options, jaw_model=sim.jaw_model, gain=gain)
+        self.order = order
+
+    # ------------------------------------------------------------------ transfers
+    def down(self, controls: Controls) -> Controls:
+        """The fine model's ``controls`` on the coarse model (its muscles ordered its own way)."""
+        a = np.zeros(self.sim.model.n_muscles)
+        a[self.order] = controls.a
+        return Controls(a, controls.jaw, controls.head)
+
+    def up(self, controls: Controls) -> Controls:
+        """The coarse model's ``controls`` on the fine model."""
+        return Controls(np.asarray(controls.a, dtype=np.float64)[self.order], controls.jaw, controls.head)
+
+    def space(self, space: ControlSpace) -> ControlSpace:
+        """The fine control ``space`` on the coarse model: the same unknowns in the same order."""
+        return dataclasses.replace(space, n_muscles=self.sim.model.n_muscles,
+                                   muscles=tuple(int(self.order[m]) for m in space.muscles))
+
+    def prolong(self, x) -> np.ndarray:
+        """Fine node positions ``(n, 3)`` from the coarse ones ``x``: the coarse displacement at each
+        fine rest node (barycentric in the coarse rest mesh)."""
+        coarse = self.sim.model
+        u = np.asarray(x, dtype=np.float64) - coarse.X
+        v = np.einsum("ij,ijk->ik", self._bary, u[self._tets])
+        if len(self._outside):
+            v[self._outside] = u[self._near]
+        return self.fine_sim.model.X + v
+
+    # ------------------------------------------------------------------ the fine start
+    def refine(self, controls: Controls, x, space: ControlSpace, options: FitOptions | None = None, extra_terms=(),
+               frame: float = 0.0) -> tuple[Controls, np.ndarray | None, object, FitReport]:
+        """From the coarse fit's ``controls`` and equilibrium ``x``: the fine controls, the fine
+        equilibrium (None when Newton fails from the prolonged start: the caller then solves its
+        own) and its Jacobian in ``space`` (None without a factorising solver), with a
+        :class:`FitReport` of the work (one equilibrium, one Jacobian, no steps)."""
+        from types import SimpleNamespace
+
+        from facesim.fem.linear import FactorPCG, make_linear_solver, single_blas_thread
+        from facesim.fem.newton import Problem
+        from facesim.errors import SolverError
+
+        t0 = time.perf_counter()
+        sim = self.fine_sim
+        options = options or FitOptions()
+        ctrl = self.up(controls)
+        x0 = self.prolong(x)
+        rep = FitReport(stop_reason="converged")
+        owner = SimpleNamespace(tangent=None, tangent_at=None)
+        solver = make_linear_solver(options.linear_solver or default_jacobian_solver(sim.system.n_dofs))
+        t = time.perf_counter()
+        if hasattr(solver, "factorize"):   # one factor: Newton's preconditioner, then the Jacobian's
+            xp = sim.predict(ctrl, x0)
+            with single_blas_thread():
+                K = Problem(sim.terms + sim.solve_terms(ctrl, frame, extra_terms), sim.system, xp,
+                            ctrl.a).hessian(xp, project=False)
+                owner.tangent, owner.tangent_at = solver.factorize(K), (ctrl, xp, frame)
+            del K
+            if hasattr(owner.tangent, "release_matrix"):
+                owner.tangent.release_matrix()
+        rep.timing["jacobian"] += time.perf_counter() - t
+        t = time.perf_counter()
+        lin = FactorPCG(owner=owner, maxiter=REFINE_CG_MAXITER) if owner.tangent is not None else None
+        try:
+            eq = sim.equilibrium(ctrl, x0=x0, extra_terms=extra_terms, frame=frame, linear=lin)
+        except SolverError as exc:
+            eq, rep.error = None, " ".join(str(exc).split())
+        rep.timing["equilibria"] += time.perf_counter() - t
+        rep.equilibria = 1
+        if eq is None or not eq.converged:
+            rep.stop_reason = "equilibrium_failed"
+            rep.error = rep.error or "no converged equilibrium from the prolonged coarse fit"
+            rep.seconds = time.perf_counter() - t0
+            return ctrl, None, None, rep
+        rep.newton_iterations = eq.iterations
+        rep.linear_solves = len(eq.report.linear_iterations)
+        J = None
+        tangent, at = owner.tangent, owner.tangent_at
+        if lin is not None and lin.factor is not None and lin.factor is not tangent:
+            tangent, at = lin.factor, None   # the Newton's own, nearer factor (made below FactorPCG's amg_above)
+        lin = owner.tangent = None
+        if tangent is not None:
+            t = time.perf_counter()
+            if EXACT_JACOBIAN:
+                tangent = None   # freed before the new factorisation
+            J = equilibrium_jacobian(sim, ctrl, eq.x, space, extra_terms, options.linear_solver,
+                                     options.jacobian_rtol, frame, tangent=tangent, tangent_at=at)
+            rep.jacobians = 1
+            rep.linear_solves += 1
+            rep.timing["jacobian"] += time.perf_counter() - t
+        rep.seconds = time.perf_counter() - t0
+        return ctrl, eq.x, J, rep
+
+    def fit_frame(self, targets, controls: Controls, space: ControlSpace | None = None,
+                  options: FitOptions | None = None, weights=None, frame: float = 0.0, head_frame=None,
+                  jaw_prior=None) -> Fit:
+        """A cold frame coarse-to-fine: :func:`~facesim.inverse.gauss_newton.fit_frame` on the coarse
+        model from ``controls``, :meth:`refine`, then ``fit_frame`` on the full model from there
+        (the same arguments as ``fit_frame``'s, without ``x0``: the frame is cold). The result is
+        the full model's fit; its report counts both levels' work (equilibria, Newton iterations,
+        linear solves, Jacobians, seconds; ``gn_steps`` the full model's) and its ``timing["coarse"]``
+        is the coarse fit's and the refinement's seconds. Where the coarse fit or the refinement
+        fails, the frame is fitted cold on the full model from ``controls``."""
+        from facesim.budget import expired, time_budget
+
+        options = options or FitOptions()
+        space = space or ControlSpace.of(self.fine_sim)
+        with time_budget(options.max_seconds):
+            t0 = time.perf_counter()
+            cfit = fit_frame(self.sim, targets, self.down(controls), None, self.space(space), options,
+                             weights=weights, frame=frame, head_frame=head_frame, jaw_prior=jaw_prior)
+            start, x, J, rep = controls, None, None, None
+            if cfit.equilibrium and not expired():
+                start, x, J, rep = self.refine(cfit.controls, cfit.x, space, options, frame=frame)
+                if x is None:
+                    start = controls
+                else:
+                    head_frame = cfit.head_frame
+            coarse_seconds = time.perf_counter() - t0
+            fit = fit_frame(self.fine_sim, targets, start, x, space, options, weights=weights, jacobian=J,
+                            frame=frame, head_frame=head_frame, jaw_prior=jaw_prior)
+        merge(fit.report, [cfit.report] + ([rep] if rep is not None else []), coarse_seconds)
+        return fit
+
+
+def merge(report: FitReport, others, seconds: float) -> None:
+    """Add the work of the reports ``others`` (a coarse fit's, a refinement's) to ``report`` and
+    ``seconds`` to its time and its ``timing["coarse"]``."""
+    for other in others:
+        for key in ("equilibria", "newton_iterations", "linear_solves", "chord_iterations", "jacobians"):
+            setattr(report, key, getattr(report, key) + getattr(other, key))
+    report.seconds += seconds
+    report.timing["coarse"] = report.timing.get("coarse", 0.0) + seconds
+
+
+#: coarse starts made for a simulator, by the coarse model's path (tracking builds one per run)
+_MADE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def coarse_start_for(sim, path) -> CoarseStart:
+    """The :class:`CoarseStart` of the coarse model file ``path`` for ``sim``, made once per simulator."""
+    from facesim.model import load_model
+
+    made = _MADE.setdefault(sim, {})
+    key = str(path)
+    if key not in made:
+        made[key] = CoarseStart(sim, load_model(path), name=key)
+    return made[key]
+
+
+__all__ = ["CoarseStart", "coarse_start_for", "merge"]

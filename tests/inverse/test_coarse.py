@@ -1,0 +1,170 @@
+"""Coarse-to-fine cold frames (facesim.inverse.coarse): the prolongation, the muscle and control
+mapping, the refusals of a model of another face, and the recovery of known activations from a
+cold frame fitted on a coarser box first -- against the fine model's own cold fit."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from facesim.controls import Controls
+from facesim.errors import FacesimError
+from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
+from facesim.fem.newton import NewtonOptions
+from facesim.inverse.coarse import CoarseStart
+from facesim.inverse.gauss_newton import FitOptions, fit_frame
+from facesim.inverse.jacobian import ControlSpace
+from facesim.inverse.tracking import TrackOptions, track
+from facesim.kinematics.condyle import SlidingCondyleJaw
+
+from tests.conftest import make_box_model
+
+DIRECT = EquilibriumOptions(newton=NewtonOptions(linear_solver="direct", rtol=1e-8))
+TRUTH = Controls([0.3, 0.2], jaw=[0.04, 0.3, 0.5])
+
+
+@pytest.fixture(scope="module")
+def fine_box():
+    """The box of the shared fixture meshed at half its spacing (5,760 tets): the fine model."""
+    return make_box_model((12, 10, 8), 5.0)
+
+
+@pytest.fixture(scope="module")
+def fine_sim(fine_box):
+    return FaceSimulator(fine_box, DIRECT, jaw_model=SlidingCondyleJaw(fine_box.jaw))
+
+
+@pytest.fixture(scope="module")
+def targets(fine_sim):
+    """Markers of the fine box's equilibrium of TRUTH, with 0.05 mm noise."""
+    x = fine_sim.equilibrium(TRUTH).x
+    rng = np.random.default_rng(3)
+    return fine_sim.model.marker_positions(x) + 0.05 * rng.normal(size=(fine_sim.model.n_markers, 3))
+
+
+def reversed_muscles(model):
+    """``model`` with its two muscles listed the other way round (same muscles, other indices)."""
+    m = model.muscles
+    muscle = 1 - m.muscle
+    order = np.lexsort((m.tet, muscle))   # entries sorted by (muscle, tet), as a MuscleSet keeps them
+    return model.with_(muscles=dataclasses.replace(m, names=m.names[::-1], sides=m.sides[::-1],
+                                                   sigma_max=m.sigma_max[::-1], muscle=muscle[order],
+                                                   tet=m.tet[order], fraction=m.fraction[order],
+                                                   fibre=m.fibre[order]))
+
+
+def test_prolongation_is_exact_for_an_affine_motion(fine_sim, box_model):
+    start = CoarseStart(fine_sim, box_model)
+    A = np.array([[1.05, 0.02, 0.0], [-0.03, 0.97, 0.04], [0.01, 0.0, 1.02]])
+    b = np.array([0.5, -1.0, 2.0])
+    x = start.prolong(box_model.X @ A.T + b)
+    np.testing.assert_allclose(x, fine_sim.model.X @ A.T + b, atol=1e-9)
+
+
+def test_muscles_map_by_name_not_index(fine_sim, box_model):
+    flipped = reversed_muscles(box_model)
+    start = CoarseStart(fine_sim, flipped)
+    c = Controls([0.3, 0.1], jaw=[0.02, 0.0, 0.0])
+    down = start.down(c)
+    np.testing.assert_array_equal(down.a, [0.1, 0.3])
+    np.testing.assert_array_equal(start.up(down).a, c.a)
+    space = start.space(ControlSpace.of(fine_sim, muscles=[0]))
+    assert space.muscles == (1,) and space.n_jaw == 3
+    # the flipped coarse model under the mapped controls is the coarse box under the original ones
+    plain = FaceSimulator(box_model, DIRECT, jaw_model=fine_sim.jaw_model)
+    np.testing.assert_allclose(start.sim.equilibrium(down).x, plain.equilibrium(c).x, atol=1e-6)
+
+
+def test_the_coarse_model_takes_the_fine_models_materials_and_markers(fine_sim, box_model):
+    fine = fine_sim.model
+    soft = fine.with_tissues([dataclasses.replace(t, c10=0.5 * t.c10) for t in fine.tissues])
+    strong = soft.with_muscle_strength(2.0 * soft.muscles.sigma_max)
+    start = CoarseStart(FaceSimulator(strong, DIRECT, jaw_model=fine_sim.jaw_model), box_model)
+    assert [t.c10 for t in start.sim.model.tissues] == [t.c10 for t in strong.tissues]
+    np.testing.assert_allclose(start.sim.model.muscles.sigma_max, strong.muscles.sigma_max)
+    # the fine markers, bound to the coarse skin, sit where they are on the fine model at rest
+    np.testing.assert_allclose(start.sim.model.marker_positions(box_model.X), fine.marker_positions(fine.X),
+                               atol=1e-6)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda m: m.with_(muscles=dataclasses.replace(m.muscles, names=("zygomaticus_major_L", "risorius_L"))),
+     "muscles are not the model's"),
+    (lambda m: m.with_(jaw=dataclasses.replace(m.jaw, incisor=m.jaw.incisor + [0.0, 0.0, 5.0])),
+     "jaw incisor is 5.00 mm"),
+    (lambda m: m.with_(X=m.X + [0.0, 0.0, 30.0]), "outside its mesh"),
+    (lambda m: m.with_(X=m.X / 10.0), "same units"),
+])
+def test_a_model_of_another_face_is_refused(fine_sim, box_model, change, message):
+    with pytest.raises(FacesimError, match=message):
+        CoarseStart(fine_sim, change(box_model), name="other.npz")
+
+
+def test_a_cold_frame_coarse_to_fine_recovers_the_activations(fine_sim, box_model, targets):
+    space = ControlSpace.of(fine_sim)
+    options = FitOptions(noise=0.05)
+    neutral = Controls(np.zeros(2), jaw=np.zeros(3))
+    start = CoarseStart(fine_sim, box_model)
+    fit = start.fit_frame(targets, neutral, space, options)
+    cold = fit_frame(fine_sim, targets, neutral, None, space, options)
+    assert fit.report.converged and cold.report.converged
+    np.testing.assert_allclose(fit.controls.a, TRUTH.a, atol=0.02)
+    # six markers leave the box's jaw loosely determined (both fits open it 0.09 rad, not 0.04):
+    # the coarse-to-fine fit lands where the full model's own cold fit does
+    np.testing.assert_allclose(fit.controls.a, cold.controls.a, atol=0.01)
+    assert np.all(np.abs(np.subtract(fit.controls.jaw, cold.controls.jaw)) <= [0.005, 0.2, 0.2]), \
+        (fit.controls.jaw, cold.controls.jaw)
+    assert fit.report.marker_rms <= cold.report.marker_rms + 0.01
+    assert fit.report.timing["coarse"] > 0.0
+    assert fit.report.jacobians >= 2   # the coarse fit's and the refinement's at least
+    # the refinement hands the fine fit an equilibrium and a Jacobian: it starts as a tracked frame
+    coarse = fit_frame(start.sim, targets, start.down(neutral), None, start.space(space), options)
+    ctrl, x, J, rep = start.refine(coarse.controls, coarse.x, space, options)
+    assert x is not None and J is not None and J.age == 1 and rep.equilibria == 1
+    g = fine_sim.equilibrium(ctrl, x0=x)
+    assert g.converged and g.iterations == 0   # already the fine equilibrium
+    assert J.tangent is not None   # the factor the fit's trial equilibria start with
+
+
+def test_a_track_with_a_coarse_model_matches_one_without(fine_sim, fine_box, box_model, tmp_path, monkeypatch):
+    refined = []
+    refine = CoarseStart.refine
+    monkeypatch.setattr(CoarseStart, "refine", lambda self, *a, **k: refined.append(a) or refine(self, *a, **k))
+    truth = [Controls([0.1 + 0.05 * k, 0.2 - 0.05 * k], jaw=[0.02 * k, 0.2, 0.2]) for k in range(3)]
+    P = np.array([fine_box.marker_positions(fine_sim.equilibrium(c).x) for c in truth])
+    path = box_model.save(tmp_path / "coarse.npz")
+    results = {}
+    for name, coarse in (("plain", None), ("coarse", str(path))):
+        options = TrackOptions(fit=FitOptions(noise=0.01), head="none", coarse_model=coarse)
+        s = track(fine_sim, np.arange(3), P, tmp_path / name, options=options, progress=False)
+        assert s["status"] == "complete" and s["solved_frames"] == 3
+        results[name] = np.loadtxt(tmp_path / name / "activations.csv", delimiter=",", skiprows=1)[:, 1:]
+    assert len(refined) == 1   # the cold first frame only: the others start from their previous frame
+    np.testing.assert_allclose(results["coarse"], [c.a for c in truth], atol=0.02)
+    np.testing.assert_allclose(results["coarse"], results["plain"], atol=0.01)
+
+
+def test_solve_mocap_with_a_coarse_model(fine_sim, fine_box, box_model, tmp_path, capsys):
+    from facesim.cli import main
+    from facesim.mocap.io import write_trc
+
+    truth = [Controls([0.2, 0.1], jaw=[0.02, 0.2, 0.2]), Controls([0.25, 0.1], jaw=[0.03, 0.2, 0.2])]
+    P = np.array([fine_box.marker_positions(fine_sim.equilibrium(c).x) for c in truth])
+    write_trc(tmp_path / "m.trc", np.arange(2), list(fine_box.markers.names), P, fps=30.0)
+    fine, coarse = fine_box.save(tmp_path / "fine.npz"), box_model.save(tmp_path / "coarse.npz")
+    base = ["solve-mocap", "--model", str(fine), "--markers", str(tmp_path / "m.trc"), "--head", "none",
+            "--noise", "0.01", "--no-contact", "--solver", "direct", "-q"]
+    assert main([*base, "-o", str(tmp_path / "out"), "--coarse-model", str(coarse)]) == 0
+    A = np.loadtxt(tmp_path / "out" / "activations.csv", delimiter=",", skiprows=1)[:, 1:]
+    np.testing.assert_allclose(A, [c.a for c in truth], atol=0.02)
+    report = (tmp_path / "out" / "report.json").read_text()
+    assert "coarse.npz" in report   # the run records its coarse model with its options
+    capsys.readouterr()
+    other = box_model.with_(X=box_model.X + [0.0, 0.0, 30.0]).save(tmp_path / "other.npz")
+    for path, words in ((tmp_path / "missing.npz", ["missing.npz"]), (fine, ["is the model itself"]),
+                        (other, ["other.npz", "outside its mesh"])):
+        assert main([*base, "-o", str(tmp_path / "bad"), "--coarse-model", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err, err
+        assert all(w in err for w in words), err
+        assert not (tmp_path / "bad" / "frames.csv").exists()
