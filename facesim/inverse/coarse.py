@@ -44,13 +44,6 @@ COARSE_SNAP_MM = 2.0
 COARSE_OUTSIDE_FRACTION = 0.01
 #: the jaw joints (condyles, incisor) of the two models may differ by this much, mm
 JAW_TOL_MM = 1.0
-#: the refinement's Jacobian from a factorisation at the fine equilibrium (True) or from the factor
-#: of the prolonged start, which its Newton solve used (False: one factorisation fewer)
-EXACT_JACOBIAN = False
-#: CG iterations a Newton step of the refinement may take on the prolonged start's factor before
-#: FactorPCG factorises that step's matrix instead (whose factor then serves the Jacobian and the
-#: fit: nearer its equilibrium than the start's)
-REFINE_CG_MAXITER = 10
 
 
 def _joint_points(model: FaceModel) -> dict[str, np.ndarray]:
@@ -184,11 +177,12 @@ class CoarseStart:
                             ctrl.a).hessian(xp, project=False)
                 owner.tangent, owner.tangent_at = solver.factorize(K), (ctrl, xp, frame)
             del K
+            solver.lu = None   # the owner's alone: FactorPCG may free it for a nearer one
             if hasattr(owner.tangent, "release_matrix"):
                 owner.tangent.release_matrix()
         rep.timing["jacobian"] += time.perf_counter() - t
         t = time.perf_counter()
-        lin = FactorPCG(owner=owner, maxiter=REFINE_CG_MAXITER) if owner.tangent is not None else None
+        lin = FactorPCG(owner=owner) if owner.tangent is not None else None
         try:
             eq = sim.equilibrium(ctrl, x0=x0, extra_terms=extra_terms, frame=frame, linear=lin)
         except SolverError as exc:
@@ -208,9 +202,11 @@ class CoarseStart:
             tangent, at = lin.factor, None   # the Newton's own, nearer factor (made below FactorPCG's amg_above)
         lin = owner.tangent = None
         if tangent is not None:
+            # the columns with the Newton's factor, not a new one at the equilibrium: on the
+            # paper-size face the fit then took one step (0.98 of its prediction) and stopped,
+            # where an exact Jacobian's first step achieved 0.78 and the fit evaluated another:
+            # 140 s against 74 s for the same marker RMS (benchmarks/RESULTS.md, session 26)
             t = time.perf_counter()
-            if EXACT_JACOBIAN:
-                tangent = None   # freed before the new factorisation
             J = equilibrium_jacobian(sim, ctrl, eq.x, space, extra_terms, options.linear_solver,
                                      options.jacobian_rtol, frame, tangent=tangent, tangent_at=at)
             rep.jacobians = 1
