@@ -550,9 +550,11 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             if options.line_search == "ratio" and F - F1 >= options.accept_ratio * predicted:
                 rep.full_steps += 1
                 t = time.perf_counter()
-                alpha, F_new, x_new = _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options,
-                                              (J.dP @ dc[:nc])[rows], functools.partial(motion, start=Ph), w3,
-                                              J)
+                alpha, F_new, x_new = 1.0, F1, x1
+                if not J.nearby:   # a Jacobian solved with a nearby tangent mispredicts the motion by itself
+                    alpha, F_new, x_new = _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options,
+                                                  (J.dP @ dc[:nc])[rows], functools.partial(motion, start=Ph),
+                                                  w3, J)
                 clock["line_search"] += time.perf_counter() - t
             elif J.age > 0:   # the model of an updated Jacobian failed: evaluate it here and step again
                 J = None

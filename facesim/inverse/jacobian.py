@@ -183,6 +183,7 @@ class EquilibriumJacobian:
     tangent: object = None   # factorised tangent of the last exact evaluation (direct solver), else None
     age: int = 0             # secant updates since the last exact evaluation (0: exact)
     tangent_at: tuple | None = None   # (controls, x, frame) the tangent was assembled at (None: no tangent)
+    nearby: bool = False     # the columns were solved with a nearby tangent's factor (``tangent=``), not this one's
 
     def __getstate__(self):
         # a factorisation does not pickle (SuperLU): a Jacobian sent to another process (a dask
@@ -340,7 +341,7 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
                                seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
                                         "total": t2 - t0},
                                linear_iterations=list(solver.stats.iterations[n_before:]),
-                               tangent=tangent, tangent_at=at, age=0 if given is None else 1)
+                               tangent=tangent, tangent_at=at, age=0 if given is None else 1, nearby=given is not None)
 
 
 # CG tolerance of the Newton steps after the chord iterations. Was 0.1 tol / |g| (a linear solve

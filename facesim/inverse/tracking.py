@@ -882,7 +882,7 @@ def _save_warm(path: Path, k: int, start: _Start) -> None:
     J = start.jacobian
     if J is not None:
         _put_controls(arrays, "J", J.controls)
-        arrays.update(J_x=J.x, J_dx=J.dx, J_dP=J.dP, J_age=np.int64(J.age))
+        arrays.update(J_x=J.x, J_dx=J.dx, J_dP=J.dP, J_age=np.int64(J.age), J_nearby=np.bool_(J.nearby))
         if J.tangent is not None and J.tangent_at is not None:
             controls, x, frame = J.tangent_at
             _put_controls(arrays, "T", controls)
@@ -914,7 +914,8 @@ def _load_warm(path: Path, k: int, lines, space: ControlSpace, model, jaw_model)
                 if "T_a" in z.files:   # where the tangent was assembled: factorised there again on resume
                     at = (_get_controls(z, "T"), np.array(z["T_x"]), int(z["T_frame"]))
                 J = EquilibriumJacobian(space, _get_controls(z, "J"), np.array(z["J_x"]), np.array(z["J_dx"]),
-                                        np.array(z["J_dP"]), age=int(z["J_age"]), tangent_at=at)
+                                        np.array(z["J_dP"]), age=int(z["J_age"]), tangent_at=at,
+                                        nearby=bool(z["J_nearby"]) if "J_nearby" in z.files else False)
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, FacesimError):
         return None
     n3 = (model.n_nodes, 3)

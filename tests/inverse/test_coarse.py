@@ -168,3 +168,27 @@ def test_solve_mocap_with_a_coarse_model(fine_sim, fine_box, box_model, tmp_path
         assert err.count("\n") == 1 and "Traceback" not in err, err
         assert all(w in err for w in words), err
         assert not (tmp_path / "bad" / "frames.csv").exists()
+
+
+def test_a_jacobian_of_a_nearby_tangent_takes_no_extension_trials(fine_sim, box_model, targets, monkeypatch):
+    """A kept full step is lengthened where the markers moved less than ``J dc`` predicted; a
+    Jacobian solved with a nearby tangent (the refinement's) mispredicts by itself, so its steps
+    are kept as they are -- the secant updates carry the flag, an exact evaluation drops it."""
+    from facesim.inverse import gauss_newton
+
+    calls = []
+    extend = gauss_newton._extend
+    monkeypatch.setattr(gauss_newton, "_extend", lambda *a: calls.append(1) or extend(*a))
+    space = ControlSpace.of(fine_sim)
+    start = CoarseStart(fine_sim, box_model)
+    options = FitOptions(noise=0.05)
+    coarse = fit_frame(start.sim, targets, start.down(Controls(np.zeros(2), jaw=np.zeros(3))), None,
+                       start.space(space), options)
+    ctrl, x, J, _ = start.refine(coarse.controls, coarse.x, space, options)
+    assert J.nearby and J.secant_update(np.ones(space.size) * 1e-3, x, J.dP[:, 0] * 1e-3, ctrl).nearby
+    one = FitOptions(noise=0.05, max_steps=1)   # the step taken with that Jacobian
+    calls.clear()
+    fit = fit_frame(fine_sim, targets, ctrl, x, space, one, jacobian=J)
+    assert fit.report.full_steps == 1 and not calls
+    fit = fit_frame(fine_sim, targets, ctrl, x, space, one, jacobian=dataclasses.replace(J, nearby=False))
+    assert fit.report.full_steps == 1 and calls == [1]
