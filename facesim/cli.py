@@ -1089,8 +1089,9 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--coarse-model", metavar="COARSE.npz",
                        help="a coarser model of the same face (the same muscles and jaw; e.g. the model a paper-size "
                             "one was refined from): each cold frame (the first, a chunk's first) is fitted on it "
-                            "first and refined on --model from there -- the paper-size face's cold frame in a "
-                            "third of the time (benchmarks/RESULTS.md); tracked frames are unchanged")
+                            "first and refined on --model from there -- the paper-size face's cold frame in 40%% of "
+                            "the time with the medium face (benchmarks/RESULTS.md); the model's markers are bound "
+                            "to its skin, so its own marker layout does not matter")
     solve.add_argument("--max-steps", type=_count(1, 1000), default=5,
                        help="Gauss-Newton steps per frame (default: %(default)s)")
     solve.add_argument("--no-robust", action="store_true",

@@ -594,7 +594,8 @@ def carry_template(template, X, T, skin, landmarks, mandible=None, crania=()):
     outer skin ``skin`` through the warp between the template's and the subject's ``landmarks``,
     refined by the skin and bone surfaces (:func:`refined_warp`). Returns ``(MuscleSet,
     MarkerSet, tissue (m,) int32, report)``."""
-    from facesim.importing.template import _TetLocator, transfer_markers, transfer_muscles
+    from facesim.fem.meshes import TetLocator
+    from facesim.importing.template import transfer_markers, transfer_muscles
 
     warp, refine = refined_warp(template, landmarks, X, skin, mandible, crania)
     muscles, mrep = transfer_muscles(template, warp, X, T)
@@ -602,7 +603,7 @@ def carry_template(template, X, T, skin, landmarks, mandible=None, crania=()):
     # tissue labels: the template's at each tet's centroid pulled back (flesh where it falls outside)
     C = X[T].mean(axis=1)
     P = warp.inverse(C)
-    tet, _ = _TetLocator(template.X, template.tets, 1.0).locate(P)
+    tet, _ = TetLocator(template.X, template.tets, 1.0).locate(P)
     flesh = 0
     tissue = np.where(tet >= 0, template.tissue[np.maximum(tet, 0)], flesh).astype(np.int32)
     report = {"landmarks_used": refine.pop("landmarks_used"), "refinement": refine,

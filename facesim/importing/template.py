@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 
 from facesim._kernels import locate as _k
 from facesim.errors import FacesimError
+from facesim.fem.meshes import TetLocator
 from facesim.mocap.binding import bind_point, triangle_normals
 from facesim.model import FaceModel, MarkerSet, MuscleSet, signed_volumes
 
@@ -422,34 +423,6 @@ def barycentric_samples(n: int) -> np.ndarray:
     return (np.array(pts, dtype=np.float64) + 0.25) / (L + 1)
 
 
-class _TetLocator:
-    """Point location in one tet mesh (``X (n, 3)`` mm, ``tets (m, 4)``): the inverse edge
-    matrices and a uniform grid over the tets' boxes grown by ``snap`` mm, built once."""
-
-    def __init__(self, X: np.ndarray, tets: np.ndarray, snap: float):
-        self.X = np.ascontiguousarray(X, dtype=np.float64)
-        self.tets = np.ascontiguousarray(tets, dtype=np.int32)
-        self.snap = float(snap)
-        E = np.transpose(self.X[self.tets[:, 1:]] - self.X[self.tets[:, :1]], (0, 2, 1))   # columns: edges
-        self.Tinv = np.ascontiguousarray(np.linalg.inv(E))
-        box = np.ptp(self.X[self.tets], axis=1).max(axis=1)
-        lo = self.X.min(axis=0) - self.snap - 1e-6
-        hi = self.X.max(axis=0) + self.snap + 1e-6
-        h = max(float(np.median(box)), float(np.prod(hi - lo) / 4e6) ** (1 / 3))   # at most ~4M cells
-        self.origin, self.h = lo, h
-        self.shape = np.maximum(np.ceil((hi - lo) / h).astype(np.int64), 1)
-        self.ptr, self.idx = _k.tet_grid(self.X, self.tets, self.snap, self.origin, self.h, self.shape)
-
-    def locate(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(tet (k,) int32, -1 outside; bary (k, 4))`` of the points ``P (k, 3)`` mm."""
-        P = _points(P)
-        tet = np.empty(len(P), dtype=np.int32)
-        bary = np.zeros((len(P), 4))
-        _k.locate_points(P, self.X, self.tets, self.Tinv, self.origin, self.h, self.shape, self.ptr, self.idx,
-                         self.snap, tet, bary)
-        return tet, bary
-
-
 def _check_mesh(X, tets, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
     tets = np.ascontiguousarray(np.asarray(tets), dtype=np.int32)
@@ -523,7 +496,7 @@ def transfer_muscles(template: FaceModel, warp: Warp, X, tets, samples_per_tet: 
     det_lo, det_hi = min(det_lo, lo), max(det_hi, hi)
 
     # template structures, built once: point location, the entries grouped by tet
-    loc = _TetLocator(template.X, template.tets, snap)
+    loc = TetLocator(template.X, template.tets, snap)
     order = np.argsort(mus.tet, kind="stable")
     ptr = np.zeros(template.n_tets + 1, dtype=np.int64)
     np.add.at(ptr, mus.tet + 1, 1)
@@ -571,7 +544,7 @@ def transfer_muscles(template: FaceModel, warp: Warp, X, tets, samples_per_tet: 
         lo, hi = warp.check_unfolded(S, "the template's muscles")
         det_lo, det_hi = min(det_lo, lo), max(det_hi, hi)
     det = warp.jacobian_det(S).reshape(len(mtets), q) if len(S) else np.zeros((0, q))
-    inside = (_TetLocator(X, tets, snap).locate(warp(S))[0] >= 0).reshape(len(mtets), q) if len(S) \
+    inside = (TetLocator(X, tets, snap).locate(warp(S))[0] >= 0).reshape(len(mtets), q) if len(S) \
         else np.zeros((0, q), dtype=bool)
     row = np.searchsorted(mtets, mus.tet)
     grown = tvol[mus.tet] * mus.fraction * (det[row] @ weight)

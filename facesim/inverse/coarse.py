@@ -62,7 +62,7 @@ class CoarseStart:
 
     def __init__(self, sim, coarse: FaceModel, name: str = "coarse model"):
         from facesim.fem.equilibrium import FaceSimulator
-        from facesim.importing.template import _TetLocator
+        from facesim.fem.meshes import TetLocator
         from facesim.mocap.layout import bind_layout
 
         fine = sim.model
@@ -83,7 +83,7 @@ class CoarseStart:
             if not d <= JAW_TOL_MM:
                 raise FacesimError(f"{name}: its jaw {key.replace('_', ' ')} is {d:.2f} mm from the model's "
                                    f"(at most {JAW_TOL_MM:g} mm): not a model of the same face")
-        locator = _TetLocator(coarse.X, coarse.tets, COARSE_SNAP_MM)
+        locator = TetLocator(coarse.X, coarse.tets, COARSE_SNAP_MM)
         tet, bary = locator.locate(fine.X)
         outside = np.flatnonzero(tet < 0)
         if len(outside) > COARSE_OUTSIDE_FRACTION * fine.n_nodes:

@@ -32,9 +32,9 @@ from scipy.interpolate import RBFInterpolator
 
 from facesim._kernels import locate as kernels
 from facesim.errors import FacesimError
+from facesim.fem.meshes import TetLocator
 from facesim.importing.template import (LANDMARK_NAMES, MIN_LANDMARKS, barycentric_samples, landmark_warp,
                                         template_landmarks, transfer_markers, transfer_muscles)
-from facesim.importing.template import _TetLocator
 from facesim.model import load_model, signed_volumes
 from tests.conftest import box_tets, boundary_triangles
 
@@ -181,7 +181,7 @@ def test_samples_and_point_location_against_brute_force():
     rng = np.random.default_rng(2)
     X = X + rng.normal(0.0, 1.0, X.shape) * (np.abs(X) < 14.9)      # jiggle the inner nodes
     P = rng.uniform(-1.0, 1.0, (4000, 3)) * [23.0, 18.0, 18.0]
-    loc = _TetLocator(X, tets, snap=0.0)
+    loc = TetLocator(X, tets, snap=0.0)
     tet, bary = loc.locate(P)
     # oracle: barycentric coordinates in every tet
     E = np.transpose(X[tets[:, 1:]] - X[tets[:, :1]], (0, 2, 1))
@@ -197,7 +197,7 @@ def test_samples_and_point_location_against_brute_force():
     out = P[~hit] * 1.0
     _, depth, _ = trimesh.proximity.closest_point(trimesh.Trimesh(X, boundary_triangles(tets), process=False), out)
     assert (depth < 1.0).sum() > 100 and (depth > 1.0).sum() > 100
-    t2, b2 = _TetLocator(X, tets, snap=1.0).locate(out)
+    t2, b2 = TetLocator(X, tets, snap=1.0).locate(out)
     clear = np.abs(depth - 1.0) > 1e-6
     assert np.array_equal((t2 >= 0)[clear], (depth <= 1.0)[clear])
     snapped = t2 >= 0
