@@ -68,6 +68,10 @@ class CoarseStart:
         fine = sim.model
         self.fine_sim = sim
         self.name = name
+        if coarse.n_simulated >= fine.n_simulated:
+            raise FacesimError(f"{name}: not coarser than the model ({coarse.n_simulated:,} simulated tets against "
+                               f"{fine.n_simulated:,}); name a coarser model of the same face (e.g. the one it was "
+                               "refined from with 'model build --refine')")
         fnames, cnames = list(fine.muscles.names), list(coarse.muscles.names)
         missing = [n for n in fnames if n not in cnames]
         extra = [n for n in cnames if n not in fnames]
@@ -199,7 +203,11 @@ class CoarseStart:
         J = None
         tangent, at = owner.tangent, owner.tangent_at
         if lin is not None and lin.factor is not None and lin.factor is not tangent:
-            tangent, at = lin.factor, None   # the Newton's own, nearer factor (made below FactorPCG's amg_above)
+            tangent = lin.factor   # the Newton's own, nearer factor (made below FactorPCG's amg_above)
+        if tangent is not None and at is None:
+            # made inside the Newton solve, at an iterate near its equilibrium: a resumed run
+            # factorises again at the equilibrium (else it would go on without a factor at all)
+            at = (ctrl, eq.x, frame)
         lin = owner.tangent = None
         if tangent is not None:
             # the columns with the Newton's factor, not a new one at the equilibrium: on the

@@ -657,9 +657,14 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         chunk = options.chunk_size or (_recorded_chunk(folder.previous) if resume else None) or \
             math.ceil(len(frames) / max(n_workers, 1)) or 1
         # write_meshes is recorded only when on: a run of an older facesim (without it) still resumes
-        skip = (() if options.write_meshes else ("write_meshes",)) + \
-            (() if options.coarse_model else ("coarse_model",))   # likewise
-        record["options"] = describe(dataclasses.replace(options, chunk_size=chunk), UNRECORDED + skip)
+        skip = () if options.write_meshes else ("write_meshes",)
+        # the coarse model by its content (as the model), not its path; recorded only when used
+        record["options"] = describe(dataclasses.replace(options, chunk_size=chunk),
+                                     UNRECORDED + skip + ("coarse_model",))
+        if options.coarse_model is not None:
+            from facesim.model import load_model
+
+            record["coarse_model"] = parts(load_model(options.coarse_model))
         folder.start(record, functools.partial(_holds_a_run, folder.root), functools.partial(_clear, folder.root),
                      info=info)
         return _track(local, spec, client, options, frames, P, folder.root, chunk, start, rebinding, resume, progress,

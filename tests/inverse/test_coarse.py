@@ -94,6 +94,7 @@ def test_the_coarse_model_takes_the_fine_models_materials_and_markers(fine_sim, 
      "jaw incisor is 5.00 mm"),
     (lambda m: m.with_(X=m.X + [0.0, 0.0, 30.0]), "outside its mesh"),
     (lambda m: m.with_(X=m.X / 10.0), "same units"),
+    (lambda m: make_box_model((12, 10, 8), 5.0), "not coarser"),   # a copy of the model itself
 ])
 def test_a_model_of_another_face_is_refused(fine_sim, box_model, change, message):
     with pytest.raises(FacesimError, match=message):
@@ -124,6 +125,7 @@ def test_a_cold_frame_coarse_to_fine_recovers_the_activations(fine_sim, box_mode
     g = fine_sim.equilibrium(ctrl, x0=x)
     assert g.converged and g.iterations == 0   # already the fine equilibrium
     assert J.tangent is not None   # the factor the fit's trial equilibria start with
+    assert J.tangent_at is not None   # where a resumed run factorises it again
 
 
 def test_a_track_with_a_coarse_model_matches_one_without(fine_sim, fine_box, box_model, tmp_path, monkeypatch):
@@ -140,6 +142,15 @@ def test_a_track_with_a_coarse_model_matches_one_without(fine_sim, fine_box, box
         assert s["status"] == "complete" and s["solved_frames"] == 3
         results[name] = np.loadtxt(tmp_path / name / "activations.csv", delimiter=",", skiprows=1)[:, 1:]
     assert len(refined) == 1   # the cold first frame only: the others start from their previous frame
+    # a resume checks the coarse model by content, not by path
+    copy = box_model.save(tmp_path / "copy.npz")
+    options = TrackOptions(fit=FitOptions(noise=0.01), head="none", coarse_model=str(copy))
+    s = track(fine_sim, np.arange(3), P, tmp_path / "coarse", options=options, progress=False, resume=True)
+    assert s["status"] == "complete" and s["reused_frames"] == 3
+    moved = box_model.with_(X=box_model.X + 0.1).save(tmp_path / "moved.npz")
+    with pytest.raises(FacesimError, match="coarse_model"):
+        track(fine_sim, np.arange(3), P, tmp_path / "coarse", progress=False, resume=True,
+              options=TrackOptions(fit=FitOptions(noise=0.01), head="none", coarse_model=str(moved)))
     np.testing.assert_allclose(results["coarse"], [c.a for c in truth], atol=0.02)
     np.testing.assert_allclose(results["coarse"], results["plain"], atol=0.01)
 
