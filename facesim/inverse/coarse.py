@@ -3,17 +3,22 @@ model of the same face first, then carry the fit to the full model and finish it
 
 A cold frame of a large face costs several factorisations of its tangent: a Jacobian for each
 Gauss-Newton step from the neutral face and trial equilibria whose Newton solves start far from
-the answer (the paper-size face: 214 s, benchmarks/RESULTS.md session 25). On a coarser model of
-the same face the same fit costs a few seconds and lands close: :class:`CoarseStart` then
+the answer (the paper-size face: 179-215 s, benchmarks/RESULTS.md sessions 25-26). On a coarser
+model of the same face the same fit costs a few seconds and lands close: :class:`CoarseStart` then
 
 1. prolongs the coarse equilibrium to the fine nodes (barycentric interpolation of the coarse
    displacement in the coarse rest mesh; exact when the fine mesh refines the coarse one),
 2. factorises the fine tangent there once and solves the fine equilibrium of the coarse controls
    by Newton with CG preconditioned by that factor (:class:`~facesim.fem.linear.FactorPCG`),
 3. takes the fine Jacobian's columns with the same factor (first-order accurate: ``age`` 1, so the
-   fit evaluates an exact one where its linear model fails), and
+   fit evaluates an exact one where its linear model fails; flagged ``nearby``, so its kept steps
+   are not lengthened), and
 4. hands controls, equilibrium and Jacobian to :func:`~facesim.inverse.gauss_newton.fit_frame` as a
    tracked frame's start: the fit then usually needs one step.
+
+The paper-size face with the medium face as its coarse model: the cold frame 179 -> 68 s, the same
+marker RMS, the tracked frames after it 14 s a frame (benchmarks/RESULTS.md session 26). Worth it
+where a factorisation costs many seconds; on the medium face it gained or lost a third.
 
 The coarse model must be of the same face: the same muscles (by name), the jaw joint within
 ``JAW_TOL_MM`` and its mesh covering the fine one's nodes. It is adapted to the fine model: the
