@@ -339,7 +339,7 @@ def test_an_uninterrupted_run_factorises_no_tangent_for_its_warm_starts(inputs, 
     import facesim.inverse.tracking as tracking
 
     calls = []
-    real = tracking._tangent
-    monkeypatch.setattr(tracking, "_tangent", lambda *a: calls.append(a[2]) or real(*a))
+    real = tracking.factorised_tangent
+    monkeypatch.setattr(tracking, "factorised_tangent", lambda *a, **k: calls.append(a[1:]) or real(*a, **k))
     s = run("track", inputs, tmp_path / "out")
     assert s["status"] == "complete" and calls == []

@@ -39,7 +39,7 @@ import numpy as np
 from facesim.controls import Controls
 from facesim.errors import FacesimError
 from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
-from facesim.inverse.jacobian import ControlSpace, default_jacobian_solver, equilibrium_jacobian
+from facesim.inverse.jacobian import ControlSpace, equilibrium_jacobian, factorised_tangent
 from facesim.model import FaceModel
 
 #: fine nodes up to this far outside the coarse mesh take the values of its nearest tet's closest point
@@ -166,9 +166,8 @@ class CoarseStart:
         :class:`FitReport` of the work (one equilibrium, one Jacobian, no steps)."""
         from types import SimpleNamespace
 
-        from facesim.fem.linear import FactorPCG, make_linear_solver, single_blas_thread
-        from facesim.fem.newton import Problem
         from facesim.errors import SolverError
+        from facesim.fem.linear import FactorPCG
 
         t0 = time.perf_counter()
         sim = self.fine_sim
@@ -176,19 +175,14 @@ class CoarseStart:
         ctrl = self.up(controls)
         x0 = self.prolong(x)
         rep = FitReport(stop_reason="converged")
-        owner = SimpleNamespace(tangent=None, tangent_at=None)
-        solver = make_linear_solver(options.linear_solver or default_jacobian_solver(sim.system.n_dofs))
+        # one factor, the owner's alone (FactorPCG may free it for a nearer one): the Newton's
+        # preconditioner, then the Jacobian's
         t = time.perf_counter()
-        if hasattr(solver, "factorize"):   # one factor: Newton's preconditioner, then the Jacobian's
-            xp = sim.predict(ctrl, x0)
-            with single_blas_thread():
-                K = Problem(sim.terms + sim.solve_terms(ctrl, frame, extra_terms), sim.system, xp,
-                            ctrl.a).hessian(xp, project=False)
-                owner.tangent, owner.tangent_at = solver.factorize(K), (ctrl, xp, frame)
-            del K
-            solver.lu = None   # the owner's alone: FactorPCG may free it for a nearer one
-            if hasattr(owner.tangent, "release_matrix"):
-                owner.tangent.release_matrix()
+        xp = sim.predict(ctrl, x0)
+        owner = SimpleNamespace(tangent=factorised_tangent(sim, ctrl, xp, frame, extra_terms, options.linear_solver),
+                                tangent_at=(ctrl, xp, frame))
+        if hasattr(owner.tangent, "release_matrix"):
+            owner.tangent.release_matrix()
         rep.timing["jacobian"] += time.perf_counter() - t
         t = time.perf_counter()
         lin = FactorPCG(owner=owner) if owner.tangent is not None else None
@@ -228,6 +222,23 @@ class CoarseStart:
         rep.seconds = time.perf_counter() - t0
         return ctrl, eq.x, J, rep
 
+    def start(self, cfit: Fit, controls: Controls, head_frame, space: ControlSpace, options: FitOptions,
+              frame: float = 0.0) -> tuple[Controls, np.ndarray | None, object, np.ndarray | None, FitReport | None]:
+        """The full model's start from the coarse fit ``cfit`` of a frame that was to start from
+        ``controls`` and ``head_frame``: ``(controls, x, jacobian, head_frame, report)`` of
+        :meth:`refine` where the coarse fit found an equilibrium within the time budget and the
+        refinement converged; else the given ``controls`` and ``head_frame`` with ``x`` and
+        ``jacobian`` None (the frame is fitted cold). ``report``: the refinement's, None where it
+        was not tried."""
+        from facesim.budget import expired
+
+        if cfit.report.stop_reason == "equilibrium_failed" or not cfit.equilibrium or expired():
+            return controls, None, None, head_frame, None
+        ctrl, x, J, rep = self.refine(cfit.controls, cfit.x, space, options, frame=frame)
+        if x is None:
+            return controls, None, None, head_frame, rep
+        return ctrl, x, J, (cfit.head_frame if cfit.head_frame is not None else head_frame), rep
+
     def fit_frame(self, targets, controls: Controls, space: ControlSpace | None = None,
                   options: FitOptions | None = None, weights=None, frame: float = 0.0, head_frame=None,
                   jaw_prior=None) -> Fit:
@@ -238,7 +249,7 @@ class CoarseStart:
         linear solves, Jacobians, seconds; ``gn_steps`` the full model's) and its ``timing["coarse"]``
         is the coarse fit's and the refinement's seconds. Where the coarse fit or the refinement
         fails, the frame is fitted cold on the full model from ``controls``."""
-        from facesim.budget import expired, time_budget
+        from facesim.budget import time_budget
 
         options = options or FitOptions()
         space = space or ControlSpace.of(self.fine_sim)
@@ -246,13 +257,7 @@ class CoarseStart:
             t0 = time.perf_counter()
             cfit = fit_frame(self.sim, targets, self.down(controls), None, self.space(space), options,
                              weights=weights, frame=frame, head_frame=head_frame, jaw_prior=jaw_prior)
-            start, x, J, rep = controls, None, None, None
-            if cfit.equilibrium and not expired():
-                start, x, J, rep = self.refine(cfit.controls, cfit.x, space, options, frame=frame)
-                if x is None:
-                    start = controls
-                else:
-                    head_frame = cfit.head_frame
+            start, x, J, head_frame, rep = self.start(cfit, controls, head_frame, space, options, frame)
             coarse_seconds = time.perf_counter() - t0
             fit = fit_frame(self.fine_sim, targets, start, x, space, options, weights=weights, jacobian=J,
                             frame=frame, head_frame=head_frame, jaw_prior=jaw_prior)

@@ -34,7 +34,8 @@ import scipy.sparse as sp
 
 from facesim.controls import Controls
 from facesim.errors import FacesimError
-from facesim.fem.linear import DirectSolver, counted_cg, make_linear_solver, pardiso_available, preconditioner, single_blas_thread
+from facesim.fem.linear import (DirectSolver, counted_cg, make_linear_solver, pardiso_available, preconditioner,
+                                single_blas_thread)
 from facesim.fem.newton import Problem
 from facesim.model import FaceModel
 
@@ -238,6 +239,22 @@ def default_jacobian_solver(n_dofs: int) -> str:
     return "direct" if n_dofs < DIRECT_BELOW else "amg"
 
 
+def factorised_tangent(sim, controls: Controls, x, frame: float = 0.0, extra_terms=(),
+                       linear_solver: str | None = None):
+    """The factorised tangent at ``x (n, 3)`` for ``controls`` as :func:`equilibrium_jacobian`
+    factorises it there (the same energy -- the simulator's terms, its contact terms posed at
+    ``frame``, ``extra_terms`` -- the same true tangent and linear solver: the same factors),
+    without the Jacobian's columns; None for a solver that keeps no factorisation (AMG)."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    solver = make_linear_solver(linear_solver or default_jacobian_solver(sim.system.n_dofs))
+    if not hasattr(solver, "factorize"):
+        return None
+    with single_blas_thread():
+        K = Problem(sim.terms + sim.solve_terms(controls, frame, extra_terms), sim.system, x,
+                    controls.a).hessian(x, project=False)
+        return solver.factorize(K)
+
+
 def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None = None, extra_terms=(),
                          linear_solver: str | None = None, rtol: float = 1e-10,
                          frame: float = 0.0, tangent=None, tangent_at: tuple | None = None) -> EquilibriumJacobian:
@@ -341,7 +358,8 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
                                seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
                                         "total": t2 - t0},
                                linear_iterations=list(solver.stats.iterations[n_before:]),
-                               tangent=tangent, tangent_at=at, age=0 if given is None else 1, nearby=given is not None)
+                               tangent=tangent, tangent_at=at, age=0 if given is None else 1,
+                               nearby=given is not None)
 
 
 # CG tolerance of the Newton steps after the chord iterations. Was 0.1 tol / |g| (a linear solve
@@ -448,7 +466,8 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
                 du = inverse(-g)
                 solves += 1
             else:
-                du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL, CHORD_NEWTON_MAXITER, M)
+                du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL,
+                                           CHORD_NEWTON_MAXITER, M)
                 solves += its
                 if info != 0:
                     return best, it, solves, False
@@ -458,5 +477,5 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     return best, max_iterations, solves, False   # not reached: the loop returns
 
 
-__all__ = ["ControlSpace", "EquilibriumJacobian", "equilibrium_jacobian", "marker_jacobian", "head_increment",
-           "near_equilibrium"]
+__all__ = ["ControlSpace", "EquilibriumJacobian", "equilibrium_jacobian", "factorised_tangent", "marker_jacobian",
+           "head_increment", "near_equilibrium"]

@@ -86,16 +86,14 @@ from pathlib import Path
 import numpy as np
 
 from facesim._files import atomic_write
-from facesim.budget import TIME_LIMIT, expired, time_budget
+from facesim.budget import TIME_LIMIT, time_budget
 from facesim.controls import Controls
 from facesim.errors import FacesimError, SolverError
 from facesim.framelog import FrameLog, csv_line, read_lines
 from facesim.inverse.gauss_newton import Fit, FitOptions, FitReport, fit_frame
 from facesim.controls_io import HEAD_COLUMNS, head_pose
 from facesim.inverse.head_frame import HeadFrame
-from facesim.fem.linear import make_linear_solver, single_blas_thread
-from facesim.fem.newton import Problem
-from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, default_jacobian_solver
+from facesim.inverse.jacobian import ControlSpace, EquilibriumJacobian, factorised_tangent
 from facesim.inverse.parallel import SimulatorSpec, solve_on_cluster
 from facesim.mocap.binding import bind_neutral
 from facesim.mocap.stabilise import check_window, stabilise
@@ -253,35 +251,16 @@ def _coarse_first(coarse, targets, controls, space, options: TrackOptions, frame
     cfit, _, cfits = _fit_markers(coarse.sim, targets, coarse.down(controls), None, coarse.space(space), options,
                                   None, frame, head_frame, prior)
     fits.extend(cfits)
-    if cfit.report.stop_reason == "equilibrium_failed" or not cfit.equilibrium or expired():
-        return controls, None, None, head_frame
-    ctrl, x, J, rep = coarse.refine(cfit.controls, cfit.x, space, options.fit, frame=frame)
-    head = cfit.head_frame if cfit.head_frame is not None else head_frame
-    if x is None:
-        return controls, None, None, head_frame
-    P = _in_capture(coarse.fine_sim.model, x, head)
-    fits.append(Fit(ctrl, x, P, rep, J, head_frame=head))
-    return ctrl, x, J, head
+    controls, x, J, head_frame, rep = coarse.start(cfit, controls, head_frame, space, options.fit, frame)
+    if x is not None:
+        fits.append(Fit(controls, x, _in_capture(coarse.fine_sim.model, x, head_frame), rep, J, head_frame=head_frame))
+    return controls, x, J, head_frame
 
 
 def _in_capture(model, x, head) -> np.ndarray:
     """Marker positions of ``x`` in the capture's frame (moved by the 4x4 ``head`` when solved)."""
     P = model.marker_positions(x)
     return P if head is None else P @ head[:3, :3].T + head[:3, 3]
-
-
-def _tangent(sim, options: TrackOptions, at) -> object:
-    """The factorised tangent at ``at = (controls, x, frame)`` as :func:`equilibrium_jacobian`
-    factorises it for :func:`fit_frame` there (the same energy, matrix and linear solver: the same
-    factors), without the Jacobian's columns; None for a solver that keeps no factorisation."""
-    controls, x, frame = at
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    solver = make_linear_solver(options.fit.linear_solver or default_jacobian_solver(sim.system.n_dofs))
-    if not hasattr(solver, "factorize"):
-        return None
-    with single_blas_thread():
-        K = Problem(sim.terms + sim.solve_terms(controls, frame), sim.system, x, controls.a).hessian(x, project=False)
-        return solver.factorize(K)
 
 
 @dataclass(frozen=True)
@@ -747,7 +726,8 @@ def _track(local, spec, client, options, frames, P, out: Path, chunk: int, start
         J = saved.jacobian
         if J is not None and J.tangent_at is not None:
             if client is None:   # factorised again where it was: the same factors as the run had
-                J = dataclasses.replace(J, tangent=_tangent(local, options, J.tangent_at))
+                J = dataclasses.replace(J, tangent=factorised_tangent(local, *J.tangent_at,
+                                                                      linear_solver=options.fit.linear_solver))
             else:                # a factorisation does not travel to a worker (see EquilibriumJacobian)
                 J = dataclasses.replace(J, tangent_at=None)
         starts.append(dataclasses.replace(saved, jacobian=J))
