@@ -10,7 +10,8 @@ path, sampled at the model's markers with 0.5 mm Gaussian noise per coordinate. 
 and the three jaw parameters are solved for. ``--model`` takes any model file, e.g. a paper
 model from ``facesim model build --resolution paper``. ``--coarse COARSE.npz`` fits the cold frame
 coarse-to-fine (:class:`facesim.inverse.coarse.CoarseStart`: on that coarser model of the same
-face first, e.g. the one a paper model was refined from); its row is ``cold c2f`` and its set-up
+face first, e.g. the one a paper model was refined from; repeated: a chain, coarsest first fitted);
+its row is ``cold c2f`` and its set-up
 (loading the coarse model, binding the markers, locating the nodes) is printed apart.
 
 Prints per model and frame kind (cold, tracked): tets (simulated), unknowns, seconds per frame
@@ -67,7 +68,7 @@ def _truth(model, jaw, k: int, step: float):
     return Controls(a, jaw=jaw.natural_parameters(0.05 + 0.01 * s))
 
 
-def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool, coarse: str | None = None,
+def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool, coarse: list[str] | None = None,
               **fit_options) -> list[dict]:
     from facesim.controls import Controls
     from facesim.fem.equilibrium import FaceSimulator
@@ -122,9 +123,9 @@ def run_model(path: str, frames: int, step: float, compare: bool, verbose: bool,
         from facesim.inverse.coarse import CoarseStart
 
         t = time.perf_counter()
-        c2f = CoarseStart(sim, load_model(coarse), name=coarse)
-        print(f"  coarse start from {Path(coarse).name} ({c2f.sim.system.n_dofs:,} unknowns): set-up "
-              f"{time.perf_counter() - t:.1f} s", flush=True)
+        c2f = CoarseStart.chain(sim, [load_model(p) for p in coarse], coarse)
+        levels = ", ".join(f"{Path(c.name).name} ({c.sim.system.n_dofs:,} unknowns)" for c in c2f.levels)
+        print(f"  coarse start from {levels}: set-up {time.perf_counter() - t:.1f} s", flush=True)
         t = time.perf_counter()
         fit = c2f.fit_frame(targets[0], neutral, space, options)
         record("cold c2f", 0, fit, time.perf_counter() - t)
@@ -178,8 +179,9 @@ def main(argv=None):
     ap.add_argument("--jacobian-max-age", type=int, default=None, help="FitOptions.jacobian_max_age")
     ap.add_argument("--jacobian-drift", type=float, default=None, help="FitOptions.jacobian_drift")
     ap.add_argument("--resolution", type=float, default=None, help="FitOptions.resolution")
-    ap.add_argument("--coarse", default=None, metavar="MODEL",
-                    help="fit the cold frame on this coarser model of the same face first (facesim.inverse.coarse)")
+    ap.add_argument("--coarse", action="append", default=None, metavar="MODEL",
+                    help="fit the cold frame on this coarser model of the same face first (facesim.inverse.coarse); "
+                         "repeat for a chain of them")
     ap.add_argument("--linear-solver", choices=("direct", "pardiso", "amg"), default=None,
                     help="the Jacobian's linear solver (default: PARDISO if installed, else SuperLU / AMG by size)")
     args = ap.parse_args(argv)

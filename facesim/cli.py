@@ -547,7 +547,7 @@ def cmd_solve_mocap(args) -> int:
         s = track(solver, frames, P, args.output, options=options, resume=args.resume, overwrite=args.overwrite,
                   progress=not args.quiet, client=client, neutral=neutral,
                   info={"model": str(args.model), "markers": str(args.markers), "jaw_model": args.jaw_model,
-                        **({"coarse_model": str(args.coarse_model)} if args.coarse_model else {}),
+                        **({"coarse_model": options.coarse_model} if options.coarse_model else {}),
                         "frames": args.frames, "bind_frames": args.bind_frames, "units": args.units},
                   fps=data.rate or 30.0, output_frame=frame or "facesim")
     plot_track(args.output)
@@ -573,20 +573,26 @@ def cmd_solve_mocap(args) -> int:
     return 0
 
 
-def _coarse_model(args, spec, layout) -> str | None:
-    """``--coarse-model``'s path, checked here against the model (same muscles and jaw, its mesh
-    covering the model's, the markers placeable on its skin) so a mismatch fails before any frame."""
-    if args.coarse_model is None:
+def _coarse_model(args, spec, layout) -> str | tuple[str, ...] | None:
+    """``--coarse-model``'s path (or paths, when repeated), checked here against the model (same
+    muscles and jaw, its mesh covering the model's, the markers placeable on its skin; several:
+    each coarser than the next) so a mismatch fails before any frame."""
+    if not args.coarse_model:
         return None
     from facesim.inverse.coarse import CoarseStart
     from facesim.mocap.binding import with_markers
 
-    if Path(args.coarse_model).resolve() == Path(args.model).resolve():
-        raise FacesimError(f"--coarse-model: {args.coarse_model} is the model itself; name a coarser model of "
-                           "the same face (e.g. the one it was refined from with 'model build --refine')")
+    paths = [str(p) for p in args.coarse_model]
+    for path in paths:
+        if Path(path).resolve() == Path(args.model).resolve():
+            raise FacesimError(f"--coarse-model: {path} is the model itself; name a coarser model of "
+                               "the same face (e.g. the one it was refined from with 'model build --refine')")
+    twice = [p for k, p in enumerate(paths) if Path(p).resolve() in [Path(q).resolve() for q in paths[:k]]]
+    if twice:
+        raise FacesimError(f"--coarse-model: {twice[0]} is named twice")
     sim = spec.build() if layout is None else with_markers(spec.build(), layout.markers)
-    CoarseStart(sim, _load(args.coarse_model), name=args.coarse_model)
-    return str(args.coarse_model)
+    CoarseStart.chain(sim, [_load(p) for p in paths], paths)
+    return paths[0] if len(paths) == 1 else tuple(paths)
 
 
 def _capture_layout(args, matched: int) -> bool:
@@ -1086,12 +1092,13 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument("--jaw-prior-sigma", type=_positive(100.0, "a distance"), default=1.0, metavar="MM",
                        help="the prior's standard deviation per predicted mandible point coordinate, mm (default: "
                             "%(default)s; against the markers' --noise)")
-    solve.add_argument("--coarse-model", metavar="COARSE.npz",
+    solve.add_argument("--coarse-model", metavar="COARSE.npz", action="append",
                        help="a coarser model of the same face (the same muscles and jaw; e.g. the model a paper-size "
                             "one was refined from): each cold frame (the first, a chunk's first) is fitted on it "
                             "first and refined on --model from there -- the paper-size face's cold frame in 40%% of "
                             "the time with the medium face (benchmarks/RESULTS.md); the model's markers are bound "
-                            "to its skin, so its own marker layout does not matter")
+                            "to its skin, so its own marker layout does not matter. Repeat for a chain (any order): "
+                            "each level's cold fit starts on the next coarser one")
     solve.add_argument("--max-steps", type=_count(1, 1000), default=5,
                        help="Gauss-Newton steps per frame (default: %(default)s)")
     solve.add_argument("--no-robust", action="store_true",

@@ -107,3 +107,14 @@ def test_model_render_warns_about_opacity_without_skin_and_refuses_colouring_at_
         assert main(["model", "render", str(box_model_path), "-o", str(out), "--color-by", kind]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "at rest" in err and "simulate --render" in err
+
+
+@pytest.mark.parametrize("values", [np.zeros(0, np.int64), np.array([7]), np.array([3, 3, 3]),
+                                    np.random.default_rng(0).integers(-50, 50, 1000),
+                                    np.random.default_rng(1).integers(0, 2 ** 40, 100_000)])
+def test_unique_ints_is_numpys_unique(values):
+    from facesim._arrays import unique_ints
+
+    out = unique_ints(values)
+    np.testing.assert_array_equal(out, np.unique(values))
+    assert out.dtype == values.dtype

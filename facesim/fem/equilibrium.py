@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facesim._arrays import unique_ints
 from facesim.budget import TIME_LIMIT, time_budget
 from facesim.constants import CONTACT_STIFFNESS
 from facesim.contact.penalty import ContactTerm, node_areas
@@ -167,8 +168,9 @@ class FaceSimulator:
             from facesim.fem.linear import PardisoFactor, factorize, pardiso_available
 
             T = self.rest.tets[self.elems]
-            e = np.sort(T[:, [0, 1, 0, 2, 0, 3, 1, 2, 1, 3, 2, 3]].reshape(-1, 2), axis=1)
-            e = np.unique(e, axis=0)
+            e = np.sort(T[:, [0, 1, 0, 2, 0, 3, 1, 2, 1, 3, 2, 3]].reshape(-1, 2), axis=1).astype(np.int64)
+            key = unique_ints(e[:, 0] * np.int64(self.model.n_nodes) + e[:, 1])   # (np.unique(e, axis=0): 6.6 s)
+            e = np.stack([key // self.model.n_nodes, key % self.model.n_nodes], axis=1)
             w = 1.0 / np.maximum(np.linalg.norm(self.model.X[e[:, 0]] - self.model.X[e[:, 1]], axis=1), 1e-9)
             n = self.model.n_nodes
             W = sp.coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()

@@ -167,7 +167,7 @@ def _mkl_threads(n: int):
     global _MKL
     if _MKL is None:
         try:
-            import pypardiso  # noqa: F401
+            _import_pypardiso()
             from threadpoolctl import ThreadpoolController
 
             _MKL = ThreadpoolController().select(internal_api="mkl")
@@ -183,10 +183,36 @@ def _compute_threads() -> int:
     return int(numba.get_num_threads())
 
 
+def _import_pypardiso():
+    """``import pypardiso`` (ImportError when absent), told first where pip's mkl put ``mkl_rt``
+    (this environment's ``lib``, or ``Library/bin`` on Windows) when ``PYPARDISO_MKL_RT`` does not
+    say: importing it makes a solver, which otherwise searches the whole ``sys.prefix`` tree for
+    the library (1-2 s at every start)."""
+    import sys
+
+    if "pypardiso" not in sys.modules and "PYPARDISO_MKL_RT" not in os.environ:
+        import ctypes
+        import glob
+
+        for pattern in ("lib/libmkl_rt.so*", "lib/libmkl_rt*.dylib", "Library/bin/mkl_rt*.dll"):
+            for path in sorted(glob.glob(os.path.join(sys.prefix, pattern)), reverse=True):
+                try:
+                    ctypes.CDLL(path)
+                except OSError:
+                    continue
+                os.environ["PYPARDISO_MKL_RT"] = path
+                break
+            if "PYPARDISO_MKL_RT" in os.environ:
+                break
+    import pypardiso
+
+    return pypardiso
+
+
 def pardiso_available() -> bool:
     """Whether the optional MKL PARDISO backend (``pip install 'facesim[pardiso]'``) is installed."""
     try:
-        import pypardiso  # noqa: F401
+        _import_pypardiso()
     except ImportError:
         return False
     return True
@@ -206,7 +232,7 @@ def _mkl_pardiso():
         import ctypes
 
         try:
-            import pypardiso
+            pypardiso = _import_pypardiso()
         except ImportError:
             raise FacesimError(NO_PARDISO) from None
         lib = pypardiso.PyPardisoSolver(mtype=-2).libmkl

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from facesim._arrays import unique_ints
 from facesim._kernels.assembly import colour_elements, dirichlet_rows
 from facesim._kernels.elements import rest_shape
 from facesim.errors import FacesimError
@@ -67,7 +68,7 @@ class DofSystem:
         cc = np.tile(r, (1, 4))
         ok = (rr >= 0) & (cc >= 0)
         key = rr.astype(np.int64) * max(N, 1) + cc
-        uniq = np.unique(key[ok])
+        uniq = unique_ints(key[ok])
         rows, cols = uniq // max(N, 1), uniq % max(N, 1)
         self.indptr = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
         self.indices = cols.astype(np.int32)

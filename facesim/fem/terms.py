@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from facesim._arrays import unique_ints
 from facesim._kernels import elements as K
 from facesim.energy import NodeTerm
 from facesim.errors import FacesimError
@@ -168,7 +169,7 @@ class MuscleTerm(NodeTerm):
                          system.colour_elems, system.e2b, data)
 
     def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
-        return _own_hessian(self, x, a, project, np.unique(self.tet))
+        return _own_hessian(self, x, a, project, unique_ints(self.tet))
 
     def force_columns(self, x) -> sp.csc_matrix:
         """``G (3n, n_muscles)``: column m is the internal force of muscle m at activation 1 with the

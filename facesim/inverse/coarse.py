@@ -65,7 +65,7 @@ class CoarseStart:
     ``sim``: the coarse :class:`~facesim.fem.equilibrium.FaceSimulator`; ``order[k]``: the coarse
     muscle of fine muscle ``k``."""
 
-    def __init__(self, sim, coarse: FaceModel, name: str = "coarse model"):
+    def __init__(self, sim, coarse: FaceModel, name: str = "coarse model", of: str = "the model"):
         from facesim.fem.equilibrium import FaceSimulator
         from facesim.fem.meshes import TetLocator
         from facesim.mocap.layout import bind_layout
@@ -73,8 +73,9 @@ class CoarseStart:
         fine = sim.model
         self.fine_sim = sim
         self.name = name
+        self.nested: CoarseStart | None = None   # a coarser level still, where this level's fit starts
         if coarse.n_simulated >= fine.n_simulated:
-            raise FacesimError(f"{name}: not coarser than the model ({coarse.n_simulated:,} simulated tets against "
+            raise FacesimError(f"{name}: not coarser than {of} ({coarse.n_simulated:,} simulated tets against "
                                f"{fine.n_simulated:,}); name a coarser model of the same face (e.g. the one it was "
                                "refined from with 'model build --refine')")
         fnames, cnames = list(fine.muscles.names), list(coarse.muscles.names)
@@ -130,6 +131,41 @@ class CoarseStart:
         gain[order] = sim.muscle.gain
         self.sim = FaceSimulator(model, options=sim.options, jaw_model=sim.jaw_model, gain=gain)
         self.order = order
+
+    @classmethod
+    def chain(cls, sim, models, names=None) -> "CoarseStart":
+        """Coarse starts through several coarser ``models`` of the same face (any order; named by
+        ``names`` in errors): the finest of them starts ``sim``'s cold frames, the next finest
+        starts its own, and so on (:attr:`nested`), each level adapted to the one above it. One
+        model: as the constructor. Two models of the same size are refused (the coarser one must
+        be coarser)."""
+        models = list(models)
+        names = list(names) if names is not None else [f"coarse model {k + 1}" for k in range(len(models))]
+        if not models:
+            raise FacesimError("coarse start: no coarse model given")
+        order = sorted(range(len(models)), key=lambda k: -models[k].n_simulated)
+        top = level = cls(sim, models[order[0]], names[order[0]])
+        for k in order[1:]:
+            level.nested = cls(level.sim, models[k], names[k], of=level.name)
+            level = level.nested
+        return top
+
+    @property
+    def levels(self) -> list["CoarseStart"]:
+        """This start and its nested ones, finest first."""
+        out, level = [], self
+        while level is not None:
+            out.append(level)
+            level = level.nested
+        return out
+
+    def coarse_fit(self, targets, controls: Controls, space: ControlSpace, options: FitOptions, **kwargs) -> Fit:
+        """The cold fit of ``targets`` on the coarse model, from the fine model's ``controls`` in the
+        fine ``space`` (``kwargs``: ``fit_frame``'s ``weights``, ``frame``, ``head_frame``,
+        ``jaw_prior``): itself coarse-to-fine where there is a :attr:`nested` level."""
+        if self.nested is not None:
+            return self.nested.fit_frame(targets, self.down(controls), self.space(space), options, **kwargs)
+        return fit_frame(self.sim, targets, self.down(controls), None, self.space(space), options, **kwargs)
 
     # ------------------------------------------------------------------ transfers
     def down(self, controls: Controls) -> Controls:
@@ -243,7 +279,7 @@ class CoarseStart:
                   options: FitOptions | None = None, weights=None, frame: float = 0.0, head_frame=None,
                   jaw_prior=None) -> Fit:
         """A cold frame coarse-to-fine: :func:`~facesim.inverse.gauss_newton.fit_frame` on the coarse
-        model from ``controls``, :meth:`refine`, then ``fit_frame`` on the full model from there
+        model from ``controls`` (:meth:`coarse_fit`: itself coarse-to-fine with a nested level), :meth:`refine`, then ``fit_frame`` on the full model from there
         (the same arguments as ``fit_frame``'s, without ``x0``: the frame is cold). The result is
         the full model's fit; its report counts both levels' work (equilibria, Newton iterations,
         linear solves, Jacobians, seconds; ``gn_steps`` the full model's) and its ``timing["coarse"]``
@@ -255,8 +291,8 @@ class CoarseStart:
         space = space or ControlSpace.of(self.fine_sim)
         with time_budget(options.max_seconds):
             t0 = time.perf_counter()
-            cfit = fit_frame(self.sim, targets, self.down(controls), None, self.space(space), options,
-                             weights=weights, frame=frame, head_frame=head_frame, jaw_prior=jaw_prior)
+            cfit = self.coarse_fit(targets, controls, space, options, weights=weights, frame=frame,
+                                   head_frame=head_frame, jaw_prior=jaw_prior)
             start, x, J, head_frame, rep = self.start(cfit, controls, head_frame, space, options, frame)
             coarse_seconds = time.perf_counter() - t0
             fit = fit_frame(self.fine_sim, targets, start, x, space, options, weights=weights, jacobian=J,
@@ -279,15 +315,24 @@ def merge(report: FitReport, others, seconds: float) -> None:
 _MADE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def coarse_start_for(sim, path) -> CoarseStart:
-    """The :class:`CoarseStart` of the coarse model file ``path`` for ``sim``, made once per simulator."""
+def coarse_paths(paths) -> tuple[str, ...]:
+    """A coarse model path, or several, as a tuple of strings (None: none)."""
+    if paths is None:
+        return ()
+    return (str(paths),) if isinstance(paths, (str, bytes)) or hasattr(paths, "__fspath__") else \
+        tuple(str(p) for p in paths)
+
+
+def coarse_start_for(sim, paths) -> CoarseStart:
+    """The :class:`CoarseStart` of the coarse model file ``paths`` (one path, or several: a
+    :meth:`CoarseStart.chain`) for ``sim``, made once per simulator."""
     from facesim.model import load_model
 
     made = _MADE.setdefault(sim, {})
-    key = str(path)
+    key = coarse_paths(paths)
     if key not in made:
-        made[key] = CoarseStart(sim, load_model(path), name=key)
+        made[key] = CoarseStart.chain(sim, [load_model(p) for p in key], key)
     return made[key]
 
 
-__all__ = ["CoarseStart", "coarse_start_for", "merge"]
+__all__ = ["CoarseStart", "coarse_paths", "coarse_start_for", "merge"]

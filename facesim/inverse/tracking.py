@@ -128,7 +128,9 @@ class TrackOptions:
     markers starts a cold frame and is a prior of every frame's jaw parameters (None: none);
     coarse_model : path of a coarser model of the same face: a cold frame (a chunk's first, or one
     after a failed frame) is fitted on it first and refined on the full model
-    (:mod:`facesim.inverse.coarse`; None: cold frames on the full model alone)."""
+    (:mod:`facesim.inverse.coarse`; None: cold frames on the full model alone); several paths (a
+    tuple): a chain, each level's cold fit started on the next coarser one
+    (:meth:`~facesim.inverse.coarse.CoarseStart.chain`)."""
 
     fit: FitOptions = FitOptions()
     head: str = "procrustes"
@@ -142,7 +144,7 @@ class TrackOptions:
     head_smoothing: int = 0
     write_meshes: bool = False
     jaw_prior: object = None
-    coarse_model: str | None = None
+    coarse_model: str | tuple[str, ...] | None = None
 
     def __post_init__(self):
         if self.head not in HEAD_MODES:
@@ -249,7 +251,7 @@ def _coarse_first(coarse, targets, controls, space, options: TrackOptions, frame
     model's ``(controls, x0, jacobian, head_frame)`` -- ``x0`` and ``jacobian`` None, and the
     original ``controls`` and ``head_frame``, where the coarse fit or the refinement failed."""
     cfit, _, cfits = _fit_markers(coarse.sim, targets, coarse.down(controls), None, coarse.space(space), options,
-                                  None, frame, head_frame, prior)
+                                  None, frame, head_frame, prior, coarse.nested)
     fits.extend(cfits)
     controls, x, J, head_frame, rep = coarse.start(cfit, controls, head_frame, space, options.fit, frame)
     if x is not None:
@@ -641,9 +643,12 @@ def track(sim, frames, P, out_dir, *, names=None, options: TrackOptions | None =
         record["options"] = describe(dataclasses.replace(options, chunk_size=chunk),
                                      UNRECORDED + skip + ("coarse_model",))
         if options.coarse_model is not None:
+            from facesim.inverse.coarse import coarse_paths
             from facesim.model import load_model
 
-            record["coarse_model"] = parts(load_model(options.coarse_model))
+            paths = coarse_paths(options.coarse_model)   # one: recorded as before this could be several
+            record["coarse_model"] = parts(load_model(paths[0])) if len(paths) == 1 else \
+                [parts(load_model(p)) for p in paths]
         folder.start(record, functools.partial(_holds_a_run, folder.root), functools.partial(_clear, folder.root),
                      info=info)
         return _track(local, spec, client, options, frames, P, folder.root, chunk, start, rebinding, resume, progress,

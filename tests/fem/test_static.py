@@ -175,3 +175,34 @@ def test_bad_inputs_give_clear_errors():
         solve_static(X, T[:, [0, 2, 1, 3]], MAT, [0], X[:1])
     with pytest.raises(FacesimError, match="linear_solver"):
         NewtonOptions(linear_solver="magic")
+
+
+def test_newtons_linear_solves_are_no_tighter_than_the_tolerance_needs(monkeypatch):
+    """The forcing term min(linear_rtol, relative residual) has a floor: a tenth of what is left
+    to the tolerance (LAST_STEP_SHARE). The solve reaches the same tolerance in as many steps,
+    with fewer CG iterations than without the floor."""
+    from facesim.fem import linear as lin
+    from facesim.fem import newton as newton_mod
+
+    X, T = box_mesh((L, L, L), (10, 10, 10))   # big enough for AMG-CG to take several iterations
+    fixed, xp, _ = _rollers(X, 1.3)
+    asked = []
+    solve = lin.AMGSolver.solve
+    monkeypatch.setattr(lin.AMGSolver, "solve", lambda self, A, b, B=None, rtol=1e-8: asked.append(rtol)
+                        or solve(self, A, b, B, rtol=rtol))
+    runs = {}
+    for share in (0.0, newton_mod.LAST_STEP_SHARE):
+        monkeypatch.setattr(newton_mod, "LAST_STEP_SHARE", share)
+        asked.clear()
+        x, rep = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(rtol=1e-8))
+        runs[share] = (x, rep, list(asked))
+    (x0, rep0, asked0), (x1, rep1, asked1) = runs[0.0], runs[newton_mod.LAST_STEP_SHARE]
+    assert rep0.converged and rep1.converged
+    tol = 1e-8 * rep1.force_scale + NewtonOptions().atol
+    assert rep1.residuals[-1] <= tol and rep1.iterations <= rep0.iterations
+    # the last step asked for no more than a tenth of the way to the tolerance, the old rule for more
+    last = rep1.residuals[-2]
+    assert asked1[-1] == pytest.approx(min(1e-2, 0.1 * tol / last), rel=1e-9)
+    assert asked0[-1] < asked1[-1]
+    assert sum(rep1.linear_iterations) < sum(rep0.linear_iterations)
+    np.testing.assert_allclose(x1, x0, atol=1e-6 * L)

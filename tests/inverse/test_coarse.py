@@ -203,3 +203,76 @@ def test_a_jacobian_of_a_nearby_tangent_takes_no_extension_trials(fine_sim, box_
     assert fit.report.full_steps == 1 and not calls
     fit = fit_frame(fine_sim, targets, ctrl, x, space, one, jacobian=dataclasses.replace(J, nearby=False))
     assert fit.report.full_steps == 1 and calls == [1]
+
+
+@pytest.fixture(scope="module")
+def coarsest_box():
+    """The box meshed coarser still (144 tets, 15-20 mm cells): the third level of a chain."""
+    return make_box_model((4, 3, 2), np.array([15.0, 50.0 / 3.0, 20.0]))
+
+
+def test_a_chain_fits_each_level_on_the_next_coarser_one(fine_sim, box_model, coarsest_box, targets, monkeypatch):
+    refined = []
+    refine = CoarseStart.refine
+    monkeypatch.setattr(CoarseStart, "refine",
+                        lambda self, *a, **k: refined.append(self.fine_sim.model.n_tets) or refine(self, *a, **k))
+    # given coarsest first: the chain orders them finest first
+    chain = CoarseStart.chain(fine_sim, [coarsest_box, box_model], ["coarsest.npz", "box.npz"])
+    assert [c.name for c in chain.levels] == ["box.npz", "coarsest.npz"]
+    assert chain.nested.fine_sim is chain.sim and chain.nested.nested is None
+    # the middle level's markers are the fine model's, bound to its skin, and so are the coarsest's
+    fine_markers = fine_sim.model.marker_positions(fine_sim.model.X)
+    for level in chain.levels:
+        np.testing.assert_allclose(level.sim.model.marker_positions(level.sim.model.X), fine_markers, atol=1e-6)
+    space = ControlSpace.of(fine_sim)
+    options = FitOptions(noise=0.05)
+    neutral = Controls(np.zeros(2), jaw=np.zeros(3))
+    two = CoarseStart(fine_sim, box_model).fit_frame(targets, neutral, space, options)
+    refined.clear()
+    three = chain.fit_frame(targets, neutral, space, options)
+    # refined twice: coarsest -> box, box -> the fine model
+    assert refined == [box_model.n_tets, fine_sim.model.n_tets]
+    assert three.report.converged
+    np.testing.assert_allclose(three.controls.a, TRUTH.a, atol=0.02)
+    np.testing.assert_allclose(three.controls.a, two.controls.a, atol=0.01)
+    assert three.report.marker_rms <= two.report.marker_rms + 0.005
+    assert three.report.jacobians >= 3   # the coarsest fit's and both refinements' at least
+
+
+def test_a_chain_refuses_two_models_of_one_size(fine_sim, box_model):
+    with pytest.raises(FacesimError, match="b.npz: not coarser than a.npz"):
+        CoarseStart.chain(fine_sim, [box_model, box_model], ["a.npz", "b.npz"])
+    with pytest.raises(FacesimError, match="no coarse model"):
+        CoarseStart.chain(fine_sim, [])
+
+
+def test_solve_mocap_with_a_chain_of_coarse_models(fine_sim, fine_box, box_model, coarsest_box, tmp_path, capsys):
+    from facesim.cli import main
+    from facesim.mocap.io import write_trc
+
+    truth = [Controls([0.2, 0.1], jaw=[0.02, 0.2, 0.2]), Controls([0.25, 0.1], jaw=[0.03, 0.2, 0.2])]
+    P = np.array([fine_box.marker_positions(fine_sim.equilibrium(c).x) for c in truth])
+    write_trc(tmp_path / "m.trc", np.arange(2), list(fine_box.markers.names), P, fps=30.0)
+    fine, coarse = fine_box.save(tmp_path / "fine.npz"), box_model.save(tmp_path / "coarse.npz")
+    coarsest = coarsest_box.save(tmp_path / "coarsest.npz")
+    base = ["solve-mocap", "--model", str(fine), "--markers", str(tmp_path / "m.trc"), "--head", "none",
+            "--noise", "0.01", "--no-contact", "--solver", "direct", "-q"]
+    chain = ["--coarse-model", str(coarsest), "--coarse-model", str(coarse)]
+    assert main([*base, "-o", str(tmp_path / "out"), *chain]) == 0
+    A = np.loadtxt(tmp_path / "out" / "activations.csv", delimiter=",", skiprows=1)[:, 1:]
+    np.testing.assert_allclose(A, [c.a for c in truth], atol=0.02)
+    report = (tmp_path / "out" / "report.json").read_text()
+    assert "coarsest.npz" in report and "coarse.npz" in report
+    # a resume with the same chain reuses every frame; with one level fewer it is another run
+    assert main([*base, "-o", str(tmp_path / "out"), *chain, "--resume"]) == 0
+    assert "(2 reused)" in capsys.readouterr().out
+    assert main([*base, "-o", str(tmp_path / "out"), "--coarse-model", str(coarse), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "coarse_model" in err, err
+    for args, words in (([str(coarse), str(coarse)], ["named twice"]),
+                        ([str(coarse), str(fine_box.save(tmp_path / "copy.npz"))], ["copy.npz", "not coarser"])):
+        assert main([*base, "-o", str(tmp_path / "bad"), *[a for p in args for a in ("--coarse-model", p)]]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err, err
+        assert all(w in err for w in words), err
+        assert not (tmp_path / "bad" / "frames.csv").exists()
