@@ -573,11 +573,22 @@ def cmd_solve_mocap(args) -> int:
     return 0
 
 
+#: solve-mocap suggests --coarse-model for models of at least this many simulated tets (the
+#: paper-size face has 824K; on the medium face, 103K, a coarse start gained or lost a third)
+COARSE_HINT_ABOVE = 300_000
+
+
 def _coarse_model(args, spec, layout) -> str | tuple[str, ...] | None:
     """``--coarse-model``'s path (or paths, when repeated), checked here against the model (same
     muscles and jaw, its mesh covering the model's, the markers placeable on its skin; several:
     each coarser than the next) so a mismatch fails before any frame."""
     if not args.coarse_model:
+        n = spec.build().model.n_simulated
+        if n >= COARSE_HINT_ABOVE and not args.quiet:
+            print(f"facesim: note: a large model ({n:,} simulated tets): a cold frame (the first, each chunk's "
+                  "first) takes minutes on it; --coarse-model COARSE.npz (a coarser model of the same face, e.g. the "
+                  "one it was refined from) fits them there first, 2.6x faster on the paper-size face (docs/cli.md)",
+                  file=sys.stderr)
         return None
     from facesim.inverse.coarse import CoarseStart
     from facesim.mocap.binding import with_markers

@@ -276,3 +276,23 @@ def test_solve_mocap_with_a_chain_of_coarse_models(fine_sim, fine_box, box_model
         assert err.count("\n") == 1 and "Traceback" not in err, err
         assert all(w in err for w in words), err
         assert not (tmp_path / "bad" / "frames.csv").exists()
+
+
+def test_solve_mocap_suggests_a_coarse_model_for_a_large_model(fine_sim, fine_box, tmp_path, capsys, monkeypatch):
+    from facesim import cli
+    from facesim.mocap.io import write_trc
+
+    P = fine_box.marker_positions(fine_sim.equilibrium(Controls([0.2, 0.1], jaw=[0.02, 0.2, 0.2])).x)[None]
+    write_trc(tmp_path / "m.trc", np.arange(1), list(fine_box.markers.names), P, fps=30.0)
+    fine = fine_box.save(tmp_path / "fine.npz")
+    base = ["solve-mocap", "--model", str(fine), "--markers", str(tmp_path / "m.trc"), "--head", "none",
+            "--noise", "0.01", "--no-contact", "--solver", "direct"]
+    monkeypatch.setattr(cli, "COARSE_HINT_ABOVE", fine_box.n_simulated)   # this box counts as large
+    for extra, hinted in (([], True), (["-q"], False), (["--coarse-model", str(make_box_model().save(
+            tmp_path / "coarse.npz"))], False)):
+        assert cli.main([*base, "-o", str(tmp_path / f"out{len(extra)}"), *extra]) == 0
+        err = capsys.readouterr().err
+        assert ("--coarse-model COARSE.npz" in err) == hinted, err
+    monkeypatch.setattr(cli, "COARSE_HINT_ABOVE", fine_box.n_simulated + 1)   # not large
+    assert cli.main([*base, "-o", str(tmp_path / "small")]) == 0
+    assert "--coarse-model" not in capsys.readouterr().err
