@@ -279,8 +279,9 @@ class CoarseStart:
                   options: FitOptions | None = None, weights=None, frame: float = 0.0, head_frame=None,
                   jaw_prior=None) -> Fit:
         """A cold frame coarse-to-fine: :func:`~facesim.inverse.gauss_newton.fit_frame` on the coarse
-        model from ``controls`` (:meth:`coarse_fit`: itself coarse-to-fine with a nested level), :meth:`refine`, then ``fit_frame`` on the full model from there
-        (the same arguments as ``fit_frame``'s, without ``x0``: the frame is cold). The result is
+        model from ``controls`` (:meth:`coarse_fit`: itself coarse-to-fine with a nested level),
+        :meth:`refine`, then ``fit_frame`` on the full model from there (the same arguments as
+        ``fit_frame``'s, without ``x0``: the frame is cold). The result is
         the full model's fit; its report counts both levels' work (equilibria, Newton iterations,
         linear solves, Jacobians, seconds; ``gn_steps`` the full model's) and its ``timing["coarse"]``
         is the coarse fit's and the refinement's seconds. Where the coarse fit or the refinement
