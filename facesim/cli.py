@@ -594,13 +594,14 @@ def _coarse_model(args, spec, layout) -> str | tuple[str, ...] | None:
     from facesim.mocap.binding import with_markers
 
     paths = [str(p) for p in args.coarse_model]
-    for path in paths:
-        if Path(path).resolve() == Path(args.model).resolve():
+    resolved = [Path(p).resolve() for p in paths]
+    for path, where in zip(paths, resolved):
+        if where == Path(args.model).resolve():
             raise FacesimError(f"--coarse-model: {path} is the model itself; name a coarser model of "
                                "the same face (e.g. the one it was refined from with 'model build --refine')")
-    twice = [p for k, p in enumerate(paths) if Path(p).resolve() in [Path(q).resolve() for q in paths[:k]]]
-    if twice:
-        raise FacesimError(f"--coarse-model: {twice[0]} is named twice")
+    for k, path in enumerate(paths):
+        if resolved[k] in resolved[:k]:
+            raise FacesimError(f"--coarse-model: {path} is named twice")
     sim = spec.build() if layout is None else with_markers(spec.build(), layout.markers)
     CoarseStart.chain(sim, [_load(p) for p in paths], paths)
     return paths[0] if len(paths) == 1 else tuple(paths)

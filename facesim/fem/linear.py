@@ -194,16 +194,15 @@ def _import_pypardiso():
         import ctypes
         import glob
 
-        for pattern in ("lib/libmkl_rt.so*", "lib/libmkl_rt*.dylib", "Library/bin/mkl_rt*.dll"):
-            for path in sorted(glob.glob(os.path.join(sys.prefix, pattern)), reverse=True):
-                try:
-                    ctypes.CDLL(path)
-                except OSError:
-                    continue
-                os.environ["PYPARDISO_MKL_RT"] = path
-                break
-            if "PYPARDISO_MKL_RT" in os.environ:
-                break
+        found = [path for pattern in ("lib/libmkl_rt.so*", "lib/libmkl_rt*.dylib", "Library/bin/mkl_rt*.dll")
+                 for path in sorted(glob.glob(os.path.join(sys.prefix, pattern)), reverse=True)]
+        for path in found:
+            try:
+                ctypes.CDLL(path)
+            except OSError:
+                continue
+            os.environ["PYPARDISO_MKL_RT"] = path
+            break
     import pypardiso
 
     return pypardiso

@@ -217,8 +217,6 @@ class CoarseStart:
         xp = sim.predict(ctrl, x0)
         owner = SimpleNamespace(tangent=factorised_tangent(sim, ctrl, xp, frame, extra_terms, options.linear_solver),
                                 tangent_at=(ctrl, xp, frame))
-        if hasattr(owner.tangent, "release_matrix"):
-            owner.tangent.release_matrix()
         rep.timing["jacobian"] += time.perf_counter() - t
         t = time.perf_counter()
         lin = FactorPCG(owner=owner) if owner.tangent is not None else None

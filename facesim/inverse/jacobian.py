@@ -239,20 +239,40 @@ def default_jacobian_solver(n_dofs: int) -> str:
     return "direct" if n_dofs < DIRECT_BELOW else "amg"
 
 
+def _jacobian_solver(sim, linear_solver: str | None):
+    """The linear solver of a Jacobian's columns (``linear_solver``, else :func:`default_jacobian_solver`)."""
+    return make_linear_solver(linear_solver or default_jacobian_solver(sim.system.n_dofs))
+
+
+def _tangent(sim, controls: Controls, x, frame: float, extra_terms):
+    """The true tangent at ``x (n, 3)`` of the energy an equilibrium of ``controls`` is solved with:
+    the simulator's terms, its contact terms posed at ``frame``, ``extra_terms``."""
+    return Problem(sim.terms + sim.solve_terms(controls, frame, extra_terms), sim.system, x,
+                   controls.a).hessian(x, project=False)
+
+
+def _preconditions_only(factor) -> None:
+    """Drop the matrix a PARDISO factor keeps for its refined solves: the factor of a Jacobian's
+    tangent only preconditions (chord iterations, CG) from here on."""
+    if hasattr(factor, "release_matrix"):
+        factor.release_matrix()
+
+
 def factorised_tangent(sim, controls: Controls, x, frame: float = 0.0, extra_terms=(),
                        linear_solver: str | None = None):
     """The factorised tangent at ``x (n, 3)`` for ``controls`` as :func:`equilibrium_jacobian`
     factorises it there (the same energy -- the simulator's terms, its contact terms posed at
     ``frame``, ``extra_terms`` -- the same true tangent and linear solver: the same factors),
-    without the Jacobian's columns; None for a solver that keeps no factorisation (AMG)."""
+    without the Jacobian's columns; like the Jacobian's, it only preconditions (a PARDISO factor
+    keeps no matrix). None for a solver that keeps no factorisation (AMG)."""
     x = np.ascontiguousarray(x, dtype=np.float64)
-    solver = make_linear_solver(linear_solver or default_jacobian_solver(sim.system.n_dofs))
+    solver = _jacobian_solver(sim, linear_solver)
     if not hasattr(solver, "factorize"):
         return None
     with single_blas_thread():
-        K = Problem(sim.terms + sim.solve_terms(controls, frame, extra_terms), sim.system, x,
-                    controls.a).hessian(x, project=False)
-        return solver.factorize(K)
+        factor = solver.factorize(_tangent(sim, controls, x, frame, extra_terms))
+    _preconditions_only(factor)
+    return factor
 
 
 def equilibrium_jacobian(sim, controls: Controls, x, space: ControlSpace | None = None, extra_terms=(),
@@ -292,10 +312,8 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
     def extras(c: Controls):
         return sim.solve_terms(c, frame, extra_terms)
 
-    terms = sim.terms + extras(controls)
     system = sim.system
-    prob = Problem(terms, system, x, controls.a)
-    K = prob.hessian(x, project=False) if given is None else None
+    K = _tangent(sim, controls, x, frame, extra_terms) if given is None else None
     t_assembly = time.perf_counter() - t0
 
     sa, sj, sh = space.slices()
@@ -326,7 +344,7 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
             dTk = Hc @ dT[:, :, k]
             dx.reshape(-1, 3, nc)[model.jaw_nodes, :, sj.start + k] = Xj @ dTk[:3, :3].T + dTk[:3, 3]
     t1 = time.perf_counter()
-    solver = make_linear_solver(linear_solver or default_jacobian_solver(system.n_dofs))
+    solver = _jacobian_solver(sim, linear_solver)
     n_before = len(solver.stats.iterations)
     cols = slice(0, sj.stop)
     if sj.stop:
@@ -351,8 +369,7 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
     dP = marker_jacobian(model, x) @ dx
     t2 = time.perf_counter()
     tangent = getattr(solver, "lu", None) if given is None else given
-    if hasattr(tangent, "release_matrix"):   # kept for chord iterations and preconditioning only
-        tangent.release_matrix()
+    _preconditions_only(tangent)
     at = given_at if given is not None else None if tangent is None else (controls, x, frame)
     return EquilibriumJacobian(space, controls, x, dx, dP,
                                seconds={"assembly": t_assembly, "rhs": t1 - t0 - t_assembly, "solve": t2 - t1,
