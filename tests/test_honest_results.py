@@ -106,7 +106,7 @@ def test_a_user_mistake_is_not_a_failed_frame(box_model):
 def test_simulate_names_why_a_frame_stopped(box_model, tmp_path):
     from facesim.simulate import SimulateOptions, simulate
 
-    options = SimulateOptions(newton=NewtonOptions(linear_solver="direct", max_iterations=1))
+    options = SimulateOptions(newton=NewtonOptions(linear_solver="direct", max_iterations=1, settle_iterations=0))
     s = simulate(box_model, np.array([[0.9, 0.9]]), tmp_path, options=options, progress=False)
     row = _rows(tmp_path / "frames.csv")[0]
     assert row["converged"] == "0" and row["stop_reason"] in ("iteration_limit", "line_search_failed")

@@ -272,7 +272,7 @@ def test_render_and_video_from_a_finished_run(run, box_model_path, tmp_path, mon
 
 def test_unconverged_frame_is_flagged_and_its_markers_missing(box_model, tmp_path):
     A = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])
-    options = SimulateOptions(newton=NewtonOptions(linear_solver="direct", max_iterations=1))
+    options = SimulateOptions(newton=NewtonOptions(linear_solver="direct", max_iterations=1, settle_iterations=0))
     summary = simulate(box_model, A, tmp_path / "out", options=options, progress=False)
     assert summary["unconverged_frames"] == [1] and summary["converged"] == 2
     log = frame_log(tmp_path / "out")

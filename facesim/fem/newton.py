@@ -26,6 +26,11 @@ class NewtonOptions:
 
     rtol : relative force residual to reach; atol : absolute floor (N).
     max_iterations : Newton steps before giving up (the result is flagged, not raised).
+    settle_iterations : further steps allowed once, at ``max_iterations``, to a solve whose relative
+        residual is already below :data:`SETTLE_BELOW` (the last approach: e.g. lips pressed
+        together sliding into place across the facets of each other's meshes, where every facet
+        crossing costs Newton a short step). Such a solve is converging, only slowly; giving up
+        there threw its progress away for a restart (substeps) from the start state.
     linear_solver : ``"amg"`` (pyamg + CG, default) or ``"direct"`` (SuperLU).
     linear_rtol : CG tolerance cap; each step uses ``min(linear_rtol, rel residual)`` (inexact
         Newton with a forcing term that keeps quadratic convergence).
@@ -45,6 +50,7 @@ class NewtonOptions:
     rtol: float = 1e-6
     atol: float = 1e-10
     max_iterations: int = 60
+    settle_iterations: int = 60
     linear_solver: str = "amg"
     linear_rtol: float = 1e-2
     project: object = "auto"
@@ -60,8 +66,8 @@ class NewtonOptions:
             raise FacesimError(f"linear_solver: expected one of {SOLVERS}, got {self.linear_solver!r}")
         if self.project not in ("auto", True, False):
             raise FacesimError(f"project: expected 'auto', True or False, got {self.project!r}")
-        if not (self.rtol >= 0 and self.atol >= 0 and self.max_iterations >= 1):
-            raise FacesimError("NewtonOptions: rtol, atol must be >= 0 and max_iterations >= 1")
+        if not (self.rtol >= 0 and self.atol >= 0 and self.max_iterations >= 1 and self.settle_iterations >= 0):
+            raise FacesimError("NewtonOptions: rtol, atol must be >= 0, max_iterations >= 1 and settle_iterations >= 0")
         check_seconds(self.max_seconds, "NewtonOptions.max_seconds")
 
 
@@ -156,6 +162,10 @@ class Problem:
 #: (its forcing term's floor): the step's nonlinear error adds the rest
 LAST_STEP_SHARE = 0.1
 
+#: relative residual below which a solve at its iteration limit is settling, not failing, and gets
+#: ``NewtonOptions.settle_iterations`` more (measured: benchmarks/RESULTS.md, session 28)
+SETTLE_BELOW = 1e-2
+
 
 def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=None) -> tuple[np.ndarray, SolveReport]:
     """Minimise the problem's energy from its starting guess; returns ``(x (n, 3), report)``.
@@ -181,7 +191,13 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
     # (for good, the projected tangent converges only linearly: at the widest jaw opening of
     # examples/02 by 3% per step, 300 steps from 1e-2 to 1e-6)
     true_below = options.true_tangent_below
-    while rep.residuals[-1] > tol and rep.iterations < options.max_iterations:
+    allowed = options.max_iterations
+    while rep.residuals[-1] > tol:
+        if rep.iterations >= allowed:
+            if (allowed > options.max_iterations or not options.settle_iterations
+                    or rep.residuals[-1] > SETTLE_BELOW * force_scale):
+                break
+            allowed += options.settle_iterations   # settling: once
         if expired():   # the frame's wall-clock budget (facesim.budget): stop, flagged
             rep.stop_reason = TIME_LIMIT
             break

@@ -206,3 +206,37 @@ def test_newtons_linear_solves_are_no_tighter_than_the_tolerance_needs(monkeypat
     assert asked0[-1] < asked1[-1]
     assert sum(rep1.linear_iterations) < sum(rep0.linear_iterations)
     np.testing.assert_allclose(x1, x0, atol=1e-6 * L)
+
+
+def test_a_solve_settling_at_its_iteration_limit_gets_more_steps_once():
+    """At max_iterations a solve whose relative residual is already below SETTLE_BELOW gets
+    settle_iterations more (once) and converges to the same answer as an unlimited solve; one
+    still far from equilibrium, or with settle_iterations 0, stops flagged as before."""
+    from facesim.fem.newton import SETTLE_BELOW
+
+    X, T = box_mesh((L, L, L), (3, 3, 3))
+    fixed, xp, _ = _rollers(X, 1.4)
+    opts = dict(linear_solver="direct", rtol=1e-12, project=True)   # projected: linear convergence
+    x_ref, ref = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(**opts, max_iterations=500))
+    assert ref.converged
+    r = np.array(ref.residuals) / ref.force_scale
+    first_settled = int(np.argmax(r <= SETTLE_BELOW))   # iterations done when it first is below
+    assert 2 <= first_settled < ref.iterations - 2, r
+    # limit where it is settling: more steps, converged, the same answer
+    limit = first_settled + 1
+    x, rep = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(**opts, max_iterations=limit,
+                                                                      settle_iterations=500))
+    assert rep.converged and rep.iterations == ref.iterations > limit
+    np.testing.assert_allclose(x, x_ref, atol=1e-9 * L)
+    # only once: a settle allowance too small stops at max_iterations + settle_iterations
+    _, rep = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(**opts, max_iterations=limit,
+                                                                      settle_iterations=1))
+    assert not rep.converged and rep.stop_reason == "iteration_limit" and rep.iterations == limit + 1
+    # switched off, or not yet settling: stops at the limit
+    _, rep = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(**opts, max_iterations=limit,
+                                                                      settle_iterations=0))
+    assert not rep.converged and rep.stop_reason == "iteration_limit" and rep.iterations == limit
+    _, rep = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(**opts, max_iterations=first_settled - 1))
+    assert not rep.converged and rep.iterations == first_settled - 1
+    with pytest.raises(FacesimError, match="settle_iterations"):
+        NewtonOptions(settle_iterations=-1)
