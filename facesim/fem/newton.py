@@ -39,8 +39,13 @@ class NewtonOptions:
         then the true tangent once the relative residual is below ``true_tangent_below`` (it is
         positive definite at a stable equilibrium and restores quadratic convergence; a
         non-descent direction, an indefinite matrix or a failed line search switches back to
-        projection until the residual has dropped tenfold more). ``True`` always projects,
-        ``False`` never does.
+        projection until the residual has dropped tenfold more, or for ``true_tangent_retry``
+        steps). ``True`` always projects, ``False`` never does.
+    true_tangent_retry : projected steps after a failed true-tangent step before the true tangent
+        is tried again, even though the residual has not dropped tenfold (0: not before it has).
+        Lips sliding into place across each other's facets stall for a hundred projected steps
+        at a relative residual of ~1e-3 (alpha 1/128); retried after 5, the true tangent takes
+        over from there (benchmarks/RESULTS.md, session 28).
     step_fraction : fraction of the largest inversion-free step tried first.
     min_limited_step : below this the limit is ignored and the full step is tried first.
     max_seconds : wall-clock budget of one equilibrium (s; None: none but the caller's, see
@@ -55,6 +60,7 @@ class NewtonOptions:
     linear_rtol: float = 1e-2
     project: object = "auto"
     true_tangent_below: float = 1e-2
+    true_tangent_retry: int = 5
     step_fraction: float = 0.9
     min_limited_step: float = 0.05
     armijo: float = 1e-4
@@ -66,8 +72,10 @@ class NewtonOptions:
             raise FacesimError(f"linear_solver: expected one of {SOLVERS}, got {self.linear_solver!r}")
         if self.project not in ("auto", True, False):
             raise FacesimError(f"project: expected 'auto', True or False, got {self.project!r}")
-        if not (self.rtol >= 0 and self.atol >= 0 and self.max_iterations >= 1 and self.settle_iterations >= 0):
-            raise FacesimError("NewtonOptions: rtol, atol must be >= 0, max_iterations >= 1 and settle_iterations >= 0")
+        if not (self.rtol >= 0 and self.atol >= 0 and self.max_iterations >= 1 and self.settle_iterations >= 0
+                and self.true_tangent_retry >= 0):
+            raise FacesimError("NewtonOptions: rtol, atol must be >= 0, max_iterations >= 1, settle_iterations and "
+                               "true_tangent_retry >= 0")
         check_seconds(self.max_seconds, "NewtonOptions.max_seconds")
 
 
@@ -187,10 +195,12 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
     rep.energies.append(E)
     B = None
     allow_true = options.project == "auto"
-    # relative residual below which the true tangent is tried: lowered tenfold each time it fails
-    # (for good, the projected tangent converges only linearly: at the widest jaw opening of
-    # examples/02 by 3% per step, 300 steps from 1e-2 to 1e-6)
+    # relative residual below which the true tangent is tried: lowered tenfold each time it fails,
+    # and back to true_tangent_below after true_tangent_retry projected steps (the projected
+    # tangent converges only linearly: at the widest jaw opening of examples/02 by 3% per step,
+    # 300 steps from 1e-2 to 1e-6)
     true_below = options.true_tangent_below
+    failed_at = 0   # iterations done when the true tangent last failed
     allowed = options.max_iterations
     while rep.residuals[-1] > tol:
         if rep.iterations >= allowed:
@@ -202,6 +212,9 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
             rep.stop_reason = TIME_LIMIT
             break
         rel = rep.residuals[-1] / max(force_scale, 1e-300)
+        if (options.true_tangent_retry and true_below < options.true_tangent_below
+                and rep.iterations - failed_at >= options.true_tangent_retry):
+            true_below = options.true_tangent_below
         project = options.project is True or (options.project == "auto" and
                                                not (allow_true and rel < true_below))
         A = problem.hessian(x, project)
@@ -217,14 +230,14 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
         except SolverError:   # CG on an indefinite true tangent
             if project or options.project is False:
                 raise
-            true_below = 0.1 * rel   # the true tangent is not SPD here: project for a while
+            true_below, failed_at = 0.1 * rel, rep.iterations   # the true tangent is not SPD here: project for a while
             continue
         rep.linear_iterations.extend(linear.stats.iterations[n_before:])
         du[~sysm.free_dof] = 0.0
         slope = float(g @ du)
         if slope >= 0:
             if not project and options.project == "auto":
-                true_below = 0.1 * rel
+                true_below, failed_at = 0.1 * rel, rep.iterations
                 continue
             du = -g   # cannot happen with an SPD matrix; steepest descent as a last resort
             slope = -float(g @ g)
@@ -243,7 +256,7 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
             alpha *= 0.5
         else:
             if not project and options.project == "auto":
-                true_below = 0.1 * rel
+                true_below, failed_at = 0.1 * rel, rep.iterations
                 continue
             rep.iterations += 1
             rep.stop_reason = "line_search_failed"

@@ -240,3 +240,38 @@ def test_a_solve_settling_at_its_iteration_limit_gets_more_steps_once():
     assert not rep.converged and rep.iterations == first_settled - 1
     with pytest.raises(FacesimError, match="settle_iterations"):
         NewtonOptions(settle_iterations=-1)
+
+
+def test_the_true_tangent_is_tried_again_after_a_few_projected_steps(monkeypatch):
+    """A failed true-tangent step lowers the threshold tenfold; true_tangent_retry projected steps
+    later it is tried again (0: as before, only once the residual has dropped tenfold)."""
+    from facesim.fem import newton as newton_mod
+
+    X, T = box_mesh((L, L, L), (3, 3, 3))
+    fixed, xp, _ = _rollers(X, 1.4)
+    tried = []
+    hessian = newton_mod.Problem.hessian
+
+    def failing_true(self, x, project=True):
+        # every true-tangent step "fails" (not a descent direction); projected steps a third of
+        # Newton's, so the residual falls by ~2/3 a step: slowly enough for the retry to show
+        tried.append(project)
+        A = hessian(self, x, project)
+        return 3.0 * A if project else -A
+    monkeypatch.setattr(newton_mod.Problem, "hessian", failing_true)
+    runs = {}
+    for retry in (0, 3):
+        tried.clear()
+        _, rep = solve_static(X, T, MAT, fixed, xp, options=NewtonOptions(
+            linear_solver="direct", rtol=1e-10, max_iterations=30, settle_iterations=0, true_tangent_retry=retry))
+        runs[retry] = (rep, list(tried))
+    (rep0, tried0), (rep3, tried3) = runs[0], runs[3]
+    assert all(rep0.projected) and all(rep3.projected)   # no true step was ever accepted
+    # retried: a true attempt after every 3 projected steps once below the threshold
+    attempts0, attempts3 = tried0.count(False), tried3.count(False)
+    assert attempts3 > attempts0 >= 1, (attempts0, attempts3)
+    first = tried3.index(False)
+    pattern = tried3[first:first + 9]
+    assert pattern == [False, True, True, True, False, True, True, True, False], pattern
+    with pytest.raises(FacesimError, match="true_tangent_retry"):
+        NewtonOptions(true_tangent_retry=-1)
