@@ -195,12 +195,11 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
     rep.energies.append(E)
     B = None
     allow_true = options.project == "auto"
-    # relative residual below which the true tangent is tried: lowered tenfold each time it fails,
-    # and back to true_tangent_below after true_tangent_retry projected steps (the projected
-    # tangent converges only linearly: at the widest jaw opening of examples/02 by 3% per step,
-    # 300 steps from 1e-2 to 1e-6)
-    true_below = options.true_tangent_below
-    failed_at = 0   # iterations done when the true tangent last failed
+    # The true tangent is tried below true_tangent_below; after it fails, only once the residual
+    # has dropped tenfold from there or true_tangent_retry steps later (the projected tangent
+    # converges only linearly: at the widest jaw opening of examples/02 by 3% per step, 300 steps
+    # from 1e-2 to 1e-6)
+    failed = None   # (relative residual, iterations done) when the true tangent last failed
     allowed = options.max_iterations
     while rep.residuals[-1] > tol:
         if rep.iterations >= allowed:
@@ -212,11 +211,10 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
             rep.stop_reason = TIME_LIMIT
             break
         rel = rep.residuals[-1] / max(force_scale, 1e-300)
-        if (options.true_tangent_retry and true_below < options.true_tangent_below
-                and rep.iterations - failed_at >= options.true_tangent_retry):
-            true_below = options.true_tangent_below
-        project = options.project is True or (options.project == "auto" and
-                                               not (allow_true and rel < true_below))
+        true = allow_true and rel < options.true_tangent_below and (
+            failed is None or rel < 0.1 * failed[0]
+            or 0 < options.true_tangent_retry <= rep.iterations - failed[1])
+        project = options.project is True or (options.project == "auto" and not true)
         A = problem.hessian(x, project)
         if B is None:
             B = sysm.rigid_modes(x)
@@ -230,14 +228,14 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
         except SolverError:   # CG on an indefinite true tangent
             if project or options.project is False:
                 raise
-            true_below, failed_at = 0.1 * rel, rep.iterations   # the true tangent is not SPD here: project for a while
+            failed = (rel, rep.iterations)   # the true tangent is not SPD here: project for a while
             continue
         rep.linear_iterations.extend(linear.stats.iterations[n_before:])
         du[~sysm.free_dof] = 0.0
         slope = float(g @ du)
         if slope >= 0:
             if not project and options.project == "auto":
-                true_below, failed_at = 0.1 * rel, rep.iterations
+                failed = (rel, rep.iterations)
                 continue
             du = -g   # cannot happen with an SPD matrix; steepest descent as a last resort
             slope = -float(g @ g)
@@ -256,7 +254,7 @@ def newton(problem: Problem, options: NewtonOptions, force_scale: float, linear=
             alpha *= 0.5
         else:
             if not project and options.project == "auto":
-                true_below, failed_at = 0.1 * rel, rep.iterations
+                failed = (rel, rep.iterations)
                 continue
             rep.iterations += 1
             rep.stop_reason = "line_search_failed"
