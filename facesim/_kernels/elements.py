@@ -18,7 +18,7 @@ from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
 from facesim._kernels.fibre import fibre_stress
-from facesim._kernels.mooney import MODES_WORK, mr_modes, mr_stress, mr_tangent
+from facesim._kernels.mooney import MODES_WORK, NODE_HESSIAN_ROWS, mr_modes, mr_node_hessian, mr_stress
 
 
 @njit(**JIT_FLAGS)
@@ -93,11 +93,12 @@ def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems,
         lam = np.empty(9)
         Q = np.empty((9, 3, 3))
         work = np.empty(MODES_WORK)
+        S = np.empty((6, 3))
         acc = 0.0
         for i in range(c * n // nc, (c + 1) * n // nc):
             e = elems[i]
             deformation_gradient(x, tets[e], Bm[e], F)
-            psi, fast = mr_stress(F, c10[e], c01[e], kappa[e], vol, eps, P, work)
+            psi, fast = mr_stress(F, c10[e], c01[e], kappa[e], vol, eps, P, S)
             if not fast:   # a singular value may be clamped: the SVD form
                 psi = mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work, False)
             acc += V0[e] * psi
@@ -134,37 +135,24 @@ def _add_block(data, e2b_e, K):
 
 
 @njit(**JIT_FLAGS)
-def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, K, scratch, work):
-    """12x12 Hessian of one tet into ``K`` (overwritten); ``scratch (>= ELEMENT_SCRATCH,)``,
-    ``work (>= ELEMENT_WORK,)``. The true Hessian of an unclamped tet comes from the
-    invariants (:func:`~facesim._kernels.mooney.mr_tangent`), otherwise from the SVD modes."""
-    F = scratch[0:9].reshape((3, 3))
-    P = scratch[9:18].reshape((3, 3))
-    Q = scratch[18:99].reshape((9, 3, 3))
-    b = scratch[99:111].reshape((4, 3))
-    w = scratch[111:123]
-    lam = scratch[123:132]
+def element_scratch():
+    """The scratch arrays :func:`elastic_element_hessian` works in, made once per chunk of tets
+    (separate arrays and row slices: numba turns a reshaped view into a call, ~20 ns each, a
+    tenth of a true element Hessian)."""
+    return (np.empty((3, 3)), np.empty((3, 3)), np.empty((9, 3, 3)), np.empty((4, 3)), np.empty(12), np.empty(9),
+            np.empty((NODE_HESSIAN_ROWS, 3)), np.empty(MODES_WORK))
+
+
+@njit(**JIT_FLAGS)
+def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, K, scratch):
+    """12x12 Hessian of one tet into ``K`` (overwritten); ``scratch`` from :func:`element_scratch`.
+    The true Hessian of an unclamped tet comes from the invariants
+    (:func:`~facesim._kernels.mooney.mr_node_hessian`), otherwise from the SVD modes."""
+    F, P, Q, b, w, lam, S, work = scratch
     deformation_gradient(x, tet, Bm, F)
     shape_gradients(Bm, b)
-    if not project:
-        D = scratch[18:99].reshape((9, 9))
-        if mr_tangent(F, c10, c01, kappa, vol, eps, D, work):   # no clamp active: no SVD needed
-            # K[3a+k, 3c+m] = V0 sum_ln D[3k+l, 3m+n] b[a,l] b[c,n], via T[3k+l, 3c+m] = sum_n D b[c,n]
-            T = work[36:144].reshape((9, 12))
-            for r in range(9):
-                for c in range(4):
-                    for m in range(3):
-                        T[r, 3 * c + m] = D[r, 3 * m] * b[c, 0] + D[r, 3 * m + 1] * b[c, 1] + D[r, 3 * m + 2] * b[c, 2]
-            for a in range(4):
-                for k in range(3):
-                    row = 3 * a + k
-                    for col in range(row, 12):
-                        K[row, col] = V0 * (b[a, 0] * T[3 * k, col] + b[a, 1] * T[3 * k + 1, col]
-                                            + b[a, 2] * T[3 * k + 2, col])
-            for r in range(12):
-                for c in range(r):
-                    K[r, c] = K[c, r]
-            return
+    if not project and mr_node_hessian(F, b, V0, c10, c01, kappa, vol, eps, K, S):
+        return   # no clamp active: the true Hessian from the invariants, no SVD needed
     mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work)
     for r in range(12):
         for c in range(12):
@@ -186,10 +174,6 @@ def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, 
             K[r, c] = K[c, r]
 
 
-ELEMENT_SCRATCH = 132
-ELEMENT_WORK = max(MODES_WORK, 144)   # work of elastic_element_hessian
-
-
 @njit(parallel=True, **JIT_FLAGS)
 def elastic_assemble(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, color_ptr, color_elems, e2b, data):
     """Add the Hessians of the coloured tets into BSR ``data``; one parallel loop per colour."""
@@ -199,12 +183,11 @@ def elastic_assemble(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, color_
         nc = _chunks(n)
         for c in prange(nc):
             K = np.empty((12, 12))
-            scratch = np.empty(ELEMENT_SCRATCH)
-            work = np.empty(ELEMENT_WORK)
+            scratch = element_scratch()
             for i in range(c * n // nc, (c + 1) * n // nc):
                 e = color_elems[lo + i]
                 elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, K,
-                                        scratch, work)
+                                        scratch)
                 _add_block(data, e2b[e], K)
 
 
@@ -213,10 +196,8 @@ def elastic_element_hessians(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project
     """``Ke (k, 12, 12)``: element Hessians of the listed tets (for tests and small problems)."""
     for i in prange(elems.shape[0]):
         e = elems[i]
-        scratch = np.empty(ELEMENT_SCRATCH)
-        work = np.empty(ELEMENT_WORK)
         elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, Ke[i],
-                                scratch, work)
+                                element_scratch())
 
 
 # ---------------------------------------------------------------- muscle fibres

@@ -40,6 +40,7 @@ _P = np.array([[4.0, -2.0, -2.0], [-2.0, 4.0, -2.0], [-2.0, -2.0, 4.0],
 PSI_WORK = 12
 EXT_WORK = 3 + 3 + 3 + 9 + 27 + PSI_WORK
 MODES_WORK = 54 + SVD_WORK + EXT_WORK
+NODE_HESSIAN_ROWS = 22
 
 
 @njit(**JIT_FLAGS)
@@ -239,9 +240,9 @@ def _unclamped_start(F, eps, cof):
 
 
 @njit(**JIT_FLAGS)
-def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
+def mr_stress(F, c10, c01, kappa, vol, eps, P, S):
     """Energy density and first Piola stress ``P`` (3, 3) at ``F`` from the invariants, without
-    an SVD (``work`` >= 18 floats of scratch): ``(psi, True)``, or ``(0, False)`` (``P``
+    an SVD (``S (>= 6, 3)`` scratch rows): ``(psi, True)``, or ``(0, False)`` (``P``
     untouched) when a singular value of F may be below the clamp ``eps`` and :func:`mr_modes`
     must decide.
 
@@ -253,8 +254,8 @@ def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
             + [-(2/3) c10 J^(-2/3) I1 - (4/3) c01 J^(-4/3) I2 + J U'(J)] cof F / J,
 
     the same energy as the singular-value form (docs/physics.md section 1), at a fraction of its cost."""
-    C = work[0:9].reshape((3, 3))
-    cof = work[9:18].reshape((3, 3))
+    C = S[0:3]
+    cof = S[3:6]
     J, I1, ok = _unclamped_start(F, eps, cof)
     if not ok:
         return 0.0, False
@@ -267,7 +268,7 @@ def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
         for j in range(3):
             trC2 += C[i, j] * C[j, i]
     I2 = 0.5 * (I1 * I1 - trC2)
-    q = J ** (-2.0 / 3.0)
+    q = 1.0 / np.cbrt(J) ** 2   # J^(-2/3): cbrt is cheaper than a power
     q2 = q * q
     if vol == 0:
         L = math.log(J)
@@ -288,41 +289,10 @@ def mr_stress(F, c10, c01, kappa, vol, eps, P, work):
 
 
 @njit(**JIT_FLAGS)
-def _levi(k, m):
-    """``(p, sign)`` with ``eps_kmp = sign`` for ``k != m`` (p the third index)."""
-    return 3 - k - m, (1.0 if (m - k) % 3 == 1 else -1.0)
-
-
-@njit(**JIT_FLAGS)
-def mr_tangent(F, c10, c01, kappa, vol, eps, D, work):
-    """The true (unprojected) tangent ``D (9, 9) = dP/dF`` (row-major vec of P and F) from the
-    invariants, without an SVD; False (``D`` untouched) when a clamp may be active (the test of
-    :func:`mr_stress`). ``work`` >= 36 floats of scratch.
-
-    With the invariants ``I = (I1, I2, J)`` and their gradients ``G1 = 2F``, ``G2 = 2(I1 F - F C)``,
-    ``G3 = cof F``: ``D = sum_ij psi_ij G_i (x) G_j + sum_i psi_i d2I_i/dF2``, where
-    ``d2I1 = 2 Id``, ``d2I2[dF] = 2(2 (F:dF) F + I1 dF - dF C - F dF^T F - F F^T dF)`` and
-    ``d2J[dF]_kl = eps_kmp eps_lnq F_pq dF_mn``; psi depends on I1 and I2 only linearly."""
-    C = work[0:9].reshape((3, 3))     # F^T F
-    B = work[9:18].reshape((3, 3))    # F F^T
-    G2 = work[18:27].reshape((3, 3))  # I1 F - F C (half the gradient of I2)
-    G3 = work[27:36].reshape((3, 3))  # cof F
-    J, I1, ok = _unclamped_start(F, eps, G3)
-    if not ok:
-        return False
-    for i in range(3):
-        for j in range(3):
-            C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
-            B[i, j] = F[i, 0] * F[j, 0] + F[i, 1] * F[j, 1] + F[i, 2] * F[j, 2]
-    trC2 = 0.0
-    for i in range(3):
-        for j in range(3):
-            trC2 += C[i, j] * C[j, i]
-    I2 = 0.5 * (I1 * I1 - trC2)
-    for k in range(3):
-        for l in range(3):
-            G2[k, l] = I1 * F[k, l] - (F[k, 0] * C[0, l] + F[k, 1] * C[1, l] + F[k, 2] * C[2, l])
-    q = J ** (-2.0 / 3.0)
+def _invariant_partials(J, I1, I2, c10, c01, kappa, vol):
+    """psi's nonzero partial derivatives in the invariants ``(I1, I2, J)`` (J > 0):
+    ``(psi_1, psi_2, psi_J, psi_1J, psi_2J, psi_JJ)`` (psi is linear in I1 and I2)."""
+    q = 1.0 / np.cbrt(J) ** 2   # J^(-2/3): cbrt is cheaper than a power
     q2 = q * q
     iJ = 1.0 / J
     if vol == 0:
@@ -338,33 +308,86 @@ def mr_tangent(F, c10, c01, kappa, vol, eps, D, work):
     p1J = -(2.0 / 3.0) * p1 * iJ
     p2J = -(4.0 / 3.0) * p2 * iJ
     pJJ = (10.0 / 9.0) * p1 * I1 * iJ * iJ + (28.0 / 9.0) * p2 * I2 * iJ * iJ + ddU
-    for k in range(3):
-        for l in range(3):
-            r = 3 * k + l
-            g1 = 2.0 * F[k, l]
-            g2 = 2.0 * G2[k, l]
-            g3 = G3[k, l]
-            for m in range(3):
-                for n in range(3):
-                    h1 = 2.0 * F[m, n]
-                    h2 = 2.0 * G2[m, n]
-                    h3 = G3[m, n]
-                    v = p1J * (g1 * h3 + g3 * h1) + p2J * (g2 * h3 + g3 * h2) + pJJ * g3 * h3
-                    # d2 I2: 2 (2 F_kl F_mn + I1 d_km d_ln - d_km C_nl - F_kn F_ml - B_km d_ln)
-                    t = 2.0 * F[k, l] * F[m, n] - F[k, n] * F[m, l]
-                    if k == m:
-                        t -= C[n, l]
-                    if l == n:
-                        t -= B[k, m]
-                        if k == m:
-                            t += I1
-                            v += 2.0 * p1
-                    v += 2.0 * p2 * t
-                    if k != m and l != n:
-                        pp, sk = _levi(k, m)
-                        qq, sl = _levi(l, n)
-                        v += pJ * sk * sl * F[pp, qq]
-                    D[r, 3 * m + n] = v
+    return p1, p2, pJ, p1J, p2J, pJJ
+
+
+@njit(**JIT_FLAGS)
+def mr_node_hessian(F, b, V0, c10, c01, kappa, vol, eps, K, S):
+    """The true (unprojected) 12x12 Hessian ``K`` of one linear tet in its node positions, from the
+    invariants without an SVD, or False (``K`` untouched) when a clamp may be active (the test of
+    :func:`mr_stress`). ``b (4, 3)`` shape-function gradients, ``V0`` rest volume; ``S (>= NODE_HESSIAN_ROWS, 3)``
+    scratch (rows, not reshaped views of a flat array: numba makes a reshape a call, ~20 ns, the
+    cost of a tenth of this kernel).
+
+    With the invariants ``(I1, I2, J)`` and their gradients ``2F``, ``2(I1 F - F C)``, ``cof F``,
+    ``dP/dF = sum_ij psi_ij G_i (x) G_j + sum_i psi_i d2I_i/dF2`` (``d2I1 = 2 Id``,
+    ``d2I2[dF] = 2(2 (F:dF) F + I1 dF - dF C - F dF^T F - F F^T dF)``,
+    ``d2J[dF]_kl = eps_kmp eps_lnq F_pq dF_mn``), contracted with the shape gradients block by block
+    rather than formed: with ``f_a = F b_a``, ``y_a = cof(F) b_a``, ``beta = b_a . b_c`` and
+    ``z_a = 2 psi_1J f_a + 2 psi_2J (I1 f_a - F F^T f_a)``,
+    ``K_ac / V0 = (z_a + psi_JJ y_a) y_c^T + y_a z_c^T + 2 psi_1 beta I
+    + 2 psi_2 (2 f_a f_c^T - f_c f_a^T + (beta I1 - f_a . f_c) I - beta F F^T) + psi_J [eps_kmp h_p]``,
+    ``h = F (b_a x b_c)``. About half the flops of forming the 9x9 ``dP/dF`` and contracting it
+    (benchmarks/RESULTS.md, session 29)."""
+    C = S[0:3]     # F^T F
+    B = S[3:6]     # F F^T
+    cof = S[6:9]
+    f = S[9:13]    # F b_a
+    y = S[13:17]   # cof(F) b_a
+    z = S[17:21]
+    h = S[21]
+    J, I1, ok = _unclamped_start(F, eps, cof)
+    if not ok:
+        return False
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
+            B[i, j] = F[i, 0] * F[j, 0] + F[i, 1] * F[j, 1] + F[i, 2] * F[j, 2]
+    trC2 = 0.0
+    for i in range(3):
+        for j in range(3):
+            trC2 += C[i, j] * C[j, i]
+    I2 = 0.5 * (I1 * I1 - trC2)
+    p1, p2, pJ, p1J, p2J, pJJ = _invariant_partials(J, I1, I2, c10, c01, kappa, vol)
+    for a in range(4):
+        for k in range(3):
+            f[a, k] = F[k, 0] * b[a, 0] + F[k, 1] * b[a, 1] + F[k, 2] * b[a, 2]
+            y[a, k] = cof[k, 0] * b[a, 0] + cof[k, 1] * b[a, 1] + cof[k, 2] * b[a, 2]
+        for k in range(3):   # F C b_a = (F F^T) F b_a = B f_a
+            fcb = B[k, 0] * f[a, 0] + B[k, 1] * f[a, 1] + B[k, 2] * f[a, 2]
+            z[a, k] = 2.0 * p1J * f[a, k] + 2.0 * p2J * (I1 * f[a, k] - fcb)
+    for a in range(4):
+        for c in range(a, 4):
+            beta = b[a, 0] * b[c, 0] + b[a, 1] * b[c, 1] + b[a, 2] * b[c, 2]
+            ff = f[a, 0] * f[c, 0] + f[a, 1] * f[c, 1] + f[a, 2] * f[c, 2]
+            diag = 2.0 * p1 * beta + 2.0 * p2 * (beta * I1 - ff)
+            for k in range(3):
+                ua = z[a, k] + pJJ * y[a, k]
+                for m in range(k if c == a else 0, 3):   # a diagonal block: its upper triangle, mirrored below
+                    v = ua * y[c, m] + y[a, k] * z[c, m]
+                    v += 2.0 * p2 * (2.0 * f[a, k] * f[c, m] - f[c, k] * f[a, m] - beta * B[k, m])
+                    K[3 * a + k, 3 * c + m] = V0 * v
+                K[3 * a + k, 3 * c + k] += V0 * diag
+            if c == a:   # b_a x b_a = 0: no J term
+                for k in range(3):
+                    for m in range(k):
+                        K[3 * a + k, 3 * a + m] = K[3 * a + m, 3 * a + k]
+                continue
+            # + psi_J eps_kmp h_p, h = F (b_a x b_c)
+            e0 = b[a, 1] * b[c, 2] - b[a, 2] * b[c, 1]
+            e1 = b[a, 2] * b[c, 0] - b[a, 0] * b[c, 2]
+            e2 = b[a, 0] * b[c, 1] - b[a, 1] * b[c, 0]
+            for k in range(3):
+                h[k] = pJ * (F[k, 0] * e0 + F[k, 1] * e1 + F[k, 2] * e2)
+            K[3 * a + 0, 3 * c + 1] += V0 * h[2]
+            K[3 * a + 1, 3 * c + 0] -= V0 * h[2]
+            K[3 * a + 0, 3 * c + 2] -= V0 * h[1]
+            K[3 * a + 2, 3 * c + 0] += V0 * h[1]
+            K[3 * a + 1, 3 * c + 2] += V0 * h[0]
+            K[3 * a + 2, 3 * c + 1] -= V0 * h[0]
+            for k in range(3):
+                for m in range(3):
+                    K[3 * c + m, 3 * a + k] = K[3 * a + k, 3 * c + m]
     return True
 
 

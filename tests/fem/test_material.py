@@ -124,28 +124,35 @@ def test_bad_parameters_are_refused():
 
 @pytest.mark.parametrize("volumetric", ["log", "quadratic"])
 def test_invariant_fast_path_equals_the_singular_value_form(states, volumetric):
-    """The element kernels take stress and true tangent from the invariants (no SVD) when no
+    """The element kernels take stress and true Hessian from the invariants (no SVD) when no
     singular value can be clamped; there they must be the SVD form's, and the test that sends a
-    tet to the SVD form must never let a clamped one through."""
-    from facesim._kernels.mooney import MODES_WORK, mr_modes, mr_stress, mr_tangent
+    tet to the SVD form must never let a clamped one through. The Hessian in the node positions of
+    a tet with random shape gradients, against the SVD modes' dP/dF contracted with them."""
+    from facesim._kernels.mooney import MODES_WORK, NODE_HESSIAN_ROWS, mr_modes, mr_node_hessian, mr_stress
 
     mat = MooneyRivlin(6e-3, 2e-3, 0.4, volumetric)
     vol = 0 if volumetric == "log" else 1
     squashed = np.array([np.diag([1.0, 1.0, 0.12]), np.diag([1.3, 1.2, 0.105]), np.diag([1.0, 1.0, -0.5])])
-    P, D, lam, Q = np.empty((3, 3)), np.empty((9, 9)), np.empty(9), np.empty((9, 3, 3))
-    work, Pm = np.empty(max(MODES_WORK, 64)), np.empty((3, 3))
+    P, K, lam, Q = np.empty((3, 3)), np.empty((12, 12)), np.empty(9), np.empty((9, 3, 3))
+    work, S, Pm = np.empty(MODES_WORK), np.empty((NODE_HESSIAN_ROWS, 3)), np.empty((3, 3))
+    rng = np.random.default_rng(7)
     fast = 0
     for F in np.concatenate([states, squashed]):
-        psi, ok = mr_stress(F, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, P, work)
-        assert mr_tangent(F, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, D, work) == ok
+        b = rng.normal(size=(4, 3))
+        b[0] = -b[1:].sum(axis=0)
+        V0 = rng.uniform(0.5, 2.0)
+        psi, ok = mr_stress(F, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, P, S)
+        assert mr_node_hessian(F, b, V0, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, K, S) == ok
         s = np.linalg.svd(F, compute_uv=False)
         if not ok:
             continue
         fast += 1
         assert s.min() >= mat.clamp and np.linalg.det(F) > 0   # never a clamped tet
         psi_ref = mr_modes(F, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, Pm, lam, Q, work)
-        D_ref = np.einsum("m,mij,mkl->ijkl", lam, Q, Q).reshape(9, 9)
+        D_ref = np.einsum("m,mij,mkl->ijkl", lam, Q, Q)     # dP_kl / dF_mn
+        K_ref = V0 * np.einsum("klmn,al,cn->akcm", D_ref, b, b).reshape(12, 12)
         assert psi == pytest.approx(psi_ref, rel=1e-12, abs=1e-15)
         np.testing.assert_allclose(P, Pm, rtol=1e-10, atol=1e-13 * np.abs(Pm).max())
-        np.testing.assert_allclose(D, D_ref, rtol=1e-9, atol=1e-11 * np.abs(D_ref).max())
+        np.testing.assert_allclose(K, K_ref, rtol=1e-9, atol=1e-11 * np.abs(K_ref).max())
+        np.testing.assert_array_equal(K, K.T)
     assert 250 <= fast < len(states)   # most states take the fast path, the squashed ones do not
