@@ -18,7 +18,7 @@ from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
 from facesim._kernels.fibre import fibre_stress
-from facesim._kernels.mooney import MODES_WORK, NODE_HESSIAN_ROWS, mr_modes, mr_node_hessian, mr_stress
+from facesim._kernels.mooney import MODES_ROWS, NODE_HESSIAN_ROWS, mr_modes, mr_node_hessian, mr_stress
 
 
 @njit(**JIT_FLAGS)
@@ -92,15 +92,14 @@ def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems,
         b = np.empty((4, 3))
         lam = np.empty(9)
         Q = np.empty((9, 3, 3))
-        work = np.empty(MODES_WORK)
-        S = np.empty((6, 3))
+        W = np.empty((MODES_ROWS, 3))
         acc = 0.0
         for i in range(c * n // nc, (c + 1) * n // nc):
             e = elems[i]
             deformation_gradient(x, tets[e], Bm[e], F)
-            psi, fast = mr_stress(F, c10[e], c01[e], kappa[e], vol, eps, P, S)
+            psi, fast = mr_stress(F, c10[e], c01[e], kappa[e], vol, eps, P, W)
             if not fast:   # a singular value may be clamped: the SVD form
-                psi = mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work, False)
+                psi = mr_modes(F, c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, W, False)
             acc += V0[e] * psi
             if want_gradient:
                 shape_gradients(Bm[e], b)
@@ -140,7 +139,7 @@ def element_scratch():
     (separate arrays and row slices: numba turns a reshaped view into a call, ~20 ns each, a
     tenth of a true element Hessian)."""
     return (np.empty((3, 3)), np.empty((3, 3)), np.empty((9, 3, 3)), np.empty((4, 3)), np.empty(12), np.empty(9),
-            np.empty((NODE_HESSIAN_ROWS, 3)), np.empty(MODES_WORK))
+            np.empty((max(NODE_HESSIAN_ROWS, MODES_ROWS), 3)))
 
 
 @njit(**JIT_FLAGS)
@@ -148,12 +147,12 @@ def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, 
     """12x12 Hessian of one tet into ``K`` (overwritten); ``scratch`` from :func:`element_scratch`.
     The true Hessian of an unclamped tet comes from the invariants
     (:func:`~facesim._kernels.mooney.mr_node_hessian`), otherwise from the SVD modes."""
-    F, P, Q, b, w, lam, S, work = scratch
+    F, P, Q, b, w, lam, W = scratch
     deformation_gradient(x, tet, Bm, F)
     shape_gradients(Bm, b)
-    if not project and mr_node_hessian(F, b, V0, c10, c01, kappa, vol, eps, K, S):
+    if not project and mr_node_hessian(F, b, V0, c10, c01, kappa, vol, eps, K, W):
         return   # no clamp active: the true Hessian from the invariants, no SVD needed
-    mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work)
+    mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, W)
     for r in range(12):
         for c in range(12):
             K[r, c] = 0.0

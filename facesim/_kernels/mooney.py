@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
-from facesim._kernels.svd3 import SVD_WORK, _sym_eig3, svd3
+from facesim._kernels.svd3 import SVD_ROWS, _sym_eig3, svd3
 
 #: |s_i - s_j| (relative) below which the divided difference is replaced by its limit
 _DIVIDED_TOL = 1e-7
@@ -36,20 +36,22 @@ _P = np.array([[4.0, -2.0, -2.0], [-2.0, 4.0, -2.0], [-2.0, -2.0, 4.0],
                [-4.0, 2.0, 2.0], [2.0, -4.0, 2.0], [2.0, 2.0, -4.0]]) / 3.0
 
 
-#: scratch floats :func:`psi_derivatives`, :func:`psi_extended` and :func:`mr_modes` need
-PSI_WORK = 12
-EXT_WORK = 3 + 3 + 3 + 9 + 27 + PSI_WORK
-MODES_WORK = 54 + SVD_WORK + EXT_WORK
+#: scratch rows ``(rows, 3)`` :func:`psi_derivatives`, :func:`psi_extended`, :func:`mr_modes` and
+#: :func:`mr_node_hessian` need: 3x3 matrices and vectors are row slices of one array, never reshaped
+#: views of a flat one (numba makes a reshape a call, ~20 ns: a tenth of a true element Hessian)
+PSI_ROWS = 4
+EXT_ROWS = 6 + PSI_ROWS
+MODES_ROWS = 18 + SVD_ROWS + EXT_ROWS
 NODE_HESSIAN_ROWS = 22
 
 
 @njit(**JIT_FLAGS)
-def psi_derivatives(s, c10, c01, kappa, vol, third, g, H, T, work):
+def psi_derivatives(s, c10, c01, kappa, vol, third, g, H, T, W):
     """psi at positive ``s`` (3,), with gradient ``g`` (3,) and Hessian ``H`` (3, 3) written in place;
-    the third derivatives ``T`` (3, 3, 3) only if ``third``. ``work`` (>= PSI_WORK,) scratch."""
-    inv = work[0:3]
-    cb = work[3:6]
-    mono = work[6:12]
+    the third derivatives ``T`` (3, 3, 3) only if ``third``. ``W (>= PSI_ROWS, 3)`` scratch."""
+    inv = W[0]
+    cb = W[1]
+    mono = W[2:4]   # row 0: the I1_bar monomials, row 1: the I2_bar ones
     psi = -3.0 * (c10 + c01)
     for i in range(3):
         g[i] = 0.0
@@ -63,11 +65,11 @@ def psi_derivatives(s, c10, c01, kappa, vol, third, g, H, T, work):
     # s^(4/3) = s cb, s^(-2/3) = 1/cb^2, s^(2/3) = cb^2, s^(-4/3) = 1/(s cb)
     q = 1.0 / (cb[0] * cb[1] * cb[2]) ** 2      # J^(-2/3)
     for r in range(3):
-        mono[r] = c10 * s[r] * s[r] * q                               # I1_bar terms
-        mono[3 + r] = c01 * q * q * (s[(r + 1) % 3] * s[(r + 2) % 3]) ** 2   # I2_bar terms
+        mono[0, r] = c10 * s[r] * s[r] * q                               # I1_bar terms
+        mono[1, r] = c01 * q * q * (s[(r + 1) % 3] * s[(r + 2) % 3]) ** 2   # I2_bar terms
     for r in range(6):
         p = _P[r]
-        m = mono[r]
+        m = mono[r // 3, r % 3]
         psi += m
         for i in range(3):
             g[i] += p[i] * m * inv[i]
@@ -113,20 +115,19 @@ def psi_derivatives(s, c10, c01, kappa, vol, third, g, H, T, work):
 
 
 @njit(**JIT_FLAGS)
-def psi_extended(s, c10, c01, kappa, vol, eps, g, H, work):
+def psi_extended(s, c10, c01, kappa, vol, eps, g, H, T0, W):
     """The clamped-and-continued energy psi~ at signed ``s`` (3,); gradient ``g`` and Hessian ``H``
-    in the singular values written in place. ``work`` (>= EXT_WORK,) scratch."""
-    sh = work[0:3]
-    clamped = work[3:6]
-    g0 = work[6:9]
-    H0 = work[9:18].reshape((3, 3))
-    T0 = work[18:45].reshape((3, 3, 3))
+    in the singular values written in place. ``T0 (3, 3, 3)`` and ``W (>= EXT_ROWS, 3)`` scratch."""
+    sh = W[0]
+    clamped = W[1]
+    g0 = W[2]
+    H0 = W[3:6]
     any_clamped = False
     for i in range(3):
         clamped[i] = 1.0 if s[i] < eps else 0.0
         sh[i] = eps if s[i] < eps else s[i]
         any_clamped = any_clamped or s[i] < eps
-    psi = psi_derivatives(sh, c10, c01, kappa, vol, any_clamped, g0, H0, T0, work[45:])
+    psi = psi_derivatives(sh, c10, c01, kappa, vol, any_clamped, g0, H0, T0, W[6:])
     for i in range(3):
         g[i] = g0[i]
         for j in range(3):
@@ -169,20 +170,20 @@ def _pair_eigenvalues(si, sj, gi, gj, Hii, Hij, Hjj):
 
 
 @njit(**JIT_FLAGS)
-def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, work, want_modes=True):
+def mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, W, want_modes=True):
     """Energy density at ``F`` (3, 3); first Piola stress into ``P`` (3, 3); with ``want_modes`` the
     nine eigenvalues of dP/dF into ``lam`` (9,) and their unit eigenvectors (as 3x3 matrices) into
-    ``Q`` (9, 3, 3). ``work`` (>= MODES_WORK,) scratch."""
-    U = work[0:9].reshape((3, 3))
-    V = work[9:18].reshape((3, 3))
-    s = work[18:21]
-    g = work[21:24]
-    H = work[24:33].reshape((3, 3))
-    A = work[33:42].reshape((3, 3))
-    E = work[42:51].reshape((3, 3))
-    w = work[51:54]
-    svd3(F, U, s, V, work[54:54 + SVD_WORK])
-    psi = psi_extended(s, c10, c01, kappa, vol, eps, g, H, work[54 + SVD_WORK:])
+    ``Q`` (9, 3, 3), which is scratch until then. ``W (>= MODES_ROWS, 3)`` scratch."""
+    U = W[0:3]
+    V = W[3:6]
+    s = W[6]
+    g = W[7]
+    H = W[8:11]
+    A = W[11:14]
+    E = W[14:17]
+    w = W[17]
+    svd3(F, U, s, V, W[18:18 + SVD_ROWS])
+    psi = psi_extended(s, c10, c01, kappa, vol, eps, g, H, Q[0:3], W[18 + SVD_ROWS:])   # Q: filled below
     for k in range(3):
         for l in range(3):
             P[k, l] = U[k, 0] * g[0] * V[l, 0] + U[k, 1] * g[1] * V[l, 1] + U[k, 2] * g[2] * V[l, 2]
@@ -398,8 +399,8 @@ def mr_density_batch(F, c10, c01, kappa, vol, eps, psi, P):
     for e in prange(F.shape[0]):
         lam = np.empty(9)
         Q = np.empty((9, 3, 3))
-        work = np.empty(MODES_WORK)
-        psi[e] = mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P[e], lam, Q, work)
+        W = np.empty((MODES_ROWS, 3))
+        psi[e] = mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P[e], lam, Q, W)
 
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -409,8 +410,8 @@ def mr_tangent_batch(F, c10, c01, kappa, vol, eps, project, D):
         lam = np.empty(9)
         Q = np.empty((9, 3, 3))
         P = np.empty((3, 3))
-        work = np.empty(MODES_WORK)
-        mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, work)
+        W = np.empty((MODES_ROWS, 3))
+        mr_modes(F[e], c10[e], c01[e], kappa[e], vol, eps, P, lam, Q, W)
         for r in range(9):
             for c in range(9):
                 D[e, r, c] = 0.0

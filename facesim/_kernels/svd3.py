@@ -66,19 +66,19 @@ def _any_orthogonal(a, out):
     out[2] = bz / n
 
 
-#: scratch floats :func:`svd3` needs in ``work``
-SVD_WORK = 27
+#: scratch rows :func:`svd3` needs in ``W (rows, 3)``
+SVD_ROWS = 9
 
 
 @njit(**JIT_FLAGS)
-def svd3(F, U, s, V, work):
+def svd3(F, U, s, V, W):
     """Signed SVD of ``F`` (3, 3) into ``U`` (3, 3), ``s`` (3,), ``V`` (3, 3), all preallocated;
-    ``work`` (>= SVD_WORK,) scratch (no allocation in the element loops)."""
-    A = work[0:9].reshape((3, 3))
-    w = work[9:12]
-    B = work[12:21].reshape((3, 3))
-    u1 = work[21:24]
-    u2 = work[24:27]
+    ``W (>= SVD_ROWS, 3)`` scratch (no allocation in the element loops, no reshaped views)."""
+    A = W[0:3]
+    w = W[3]
+    B = W[4:7]
+    u1 = W[7]
+    u2 = W[8]
     for i in range(3):
         for j in range(3):
             A[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]

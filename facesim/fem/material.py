@@ -88,10 +88,10 @@ class MooneyRivlin:
         Returns ``(P11, lateral_stretch)``: the lateral stretch solves ``P22 = 0`` (scalar
         Newton on the closed-form principal stresses), then P11 follows. For verification.
         """
-        from facesim._kernels.mooney import PSI_WORK, psi_derivatives
+        from facesim._kernels.mooney import PSI_ROWS, psi_derivatives
 
         vol = VOLUMETRIC[self.volumetric]
-        g, H, T, work = np.empty(3), np.empty((3, 3)), np.empty((3, 3, 3)), np.empty(PSI_WORK)
+        g, H, T, work = np.empty(3), np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((PSI_ROWS, 3))
         lat = 1.0
         for _ in range(100):
             psi_derivatives(np.array([stretch, lat, lat]), self.c10, self.c01, self.kappa, vol, False, g, H, T, work)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from facesim._kernels.svd3 import SVD_WORK, svd3
+from facesim._kernels.svd3 import SVD_ROWS, svd3
 from facesim.errors import FacesimError
 from facesim.fem import MooneyRivlin
 
@@ -104,7 +104,7 @@ def test_inverted_elements_push_back(states):
 
 def test_signed_svd_matches_numpy(states):
     U, s, V = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
-    work = np.empty(SVD_WORK)
+    work = np.empty((SVD_ROWS, 3))
     for F in states[:100]:
         svd3(F, U, s, V, work)
         np.testing.assert_allclose(U @ np.diag(s) @ V.T, F, atol=1e-12)
@@ -128,13 +128,13 @@ def test_invariant_fast_path_equals_the_singular_value_form(states, volumetric):
     singular value can be clamped; there they must be the SVD form's, and the test that sends a
     tet to the SVD form must never let a clamped one through. The Hessian in the node positions of
     a tet with random shape gradients, against the SVD modes' dP/dF contracted with them."""
-    from facesim._kernels.mooney import MODES_WORK, NODE_HESSIAN_ROWS, mr_modes, mr_node_hessian, mr_stress
+    from facesim._kernels.mooney import MODES_ROWS, NODE_HESSIAN_ROWS, mr_modes, mr_node_hessian, mr_stress
 
     mat = MooneyRivlin(6e-3, 2e-3, 0.4, volumetric)
     vol = 0 if volumetric == "log" else 1
     squashed = np.array([np.diag([1.0, 1.0, 0.12]), np.diag([1.3, 1.2, 0.105]), np.diag([1.0, 1.0, -0.5])])
     P, K, lam, Q = np.empty((3, 3)), np.empty((12, 12)), np.empty(9), np.empty((9, 3, 3))
-    work, S, Pm = np.empty(MODES_WORK), np.empty((NODE_HESSIAN_ROWS, 3)), np.empty((3, 3))
+    work, S, Pm = np.empty((MODES_ROWS, 3)), np.empty((NODE_HESSIAN_ROWS, 3)), np.empty((3, 3))
     rng = np.random.default_rng(7)
     fast = 0
     for F in np.concatenate([states, squashed]):
