@@ -18,7 +18,7 @@ from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
 from facesim._kernels.fibre import fibre_stress
-from facesim._kernels.mooney import MODES_ROWS, NODE_HESSIAN_ROWS, mr_modes, mr_node_hessian, mr_stress
+from facesim._kernels.mooney import MODES_ROWS, NODE_HESSIAN_ROWS, PSD_ROWS, mr_modes, mr_node_hessian, mr_psd, mr_stress
 
 
 @njit(**JIT_FLAGS)
@@ -139,19 +139,22 @@ def element_scratch():
     (separate arrays and row slices: numba turns a reshaped view into a call, ~20 ns each, a
     tenth of a true element Hessian)."""
     return (np.empty((3, 3)), np.empty((3, 3)), np.empty((9, 3, 3)), np.empty((4, 3)), np.empty(12), np.empty(9),
-            np.empty((max(NODE_HESSIAN_ROWS, MODES_ROWS), 3)))
+            np.empty((max(NODE_HESSIAN_ROWS, MODES_ROWS, PSD_ROWS), 3)))
 
 
 @njit(**JIT_FLAGS)
 def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, K, scratch):
     """12x12 Hessian of one tet into ``K`` (overwritten); ``scratch`` from :func:`element_scratch`.
     The true Hessian of an unclamped tet comes from the invariants
-    (:func:`~facesim._kernels.mooney.mr_node_hessian`), otherwise from the SVD modes."""
+    (:func:`~facesim._kernels.mooney.mr_node_hessian`), otherwise from the SVD modes; so does the
+    projected one of a tet whose dP/dF is already PSD (:func:`~facesim._kernels.mooney.mr_psd`, from
+    the principal stretches without an SVD: about half the tets of a face at equilibrium)."""
     F, P, Q, b, w, lam, W = scratch
     deformation_gradient(x, tet, Bm, F)
     shape_gradients(Bm, b)
-    if not project and mr_node_hessian(F, b, V0, c10, c01, kappa, vol, eps, K, W):
-        return   # no clamp active: the true Hessian from the invariants, no SVD needed
+    if (not project or mr_psd(F, c10, c01, kappa, vol, eps, Q, W)) and \
+            mr_node_hessian(F, b, V0, c10, c01, kappa, vol, eps, K, W):
+        return   # no clamp active (and, projected, already PSD): the true Hessian from the invariants, no SVD
     mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, W)
     for r in range(12):
         for c in range(12):

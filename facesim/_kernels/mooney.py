@@ -56,7 +56,7 @@ def psi_derivatives(s, c10, c01, kappa, vol, third, g, H, T, W):
     for i in range(3):
         g[i] = 0.0
         inv[i] = 1.0 / s[i]
-        cb[i] = s[i] ** (1.0 / 3.0)
+        cb[i] = np.cbrt(s[i])   # s > 0 here; cbrt is cheaper than a power
         for j in range(3):
             H[i, j] = 0.0
             if third:
@@ -389,6 +389,73 @@ def mr_node_hessian(F, b, V0, c10, c01, kappa, vol, eps, K, S):
             for k in range(3):
                 for m in range(3):
                     K[3 * c + m, 3 * a + k] = K[3 * a + k, 3 * c + m]
+    return True
+
+
+#: a mode's eigenvalue counts as non-negative down to this fraction of the shear scale ``c10 + c01``
+#: below zero (:func:`mr_psd`): the projected Hessian differs from the true one by at most that
+PSD_MARGIN = 1e-8
+#: scratch rows :func:`mr_psd` needs
+PSD_ROWS = 9 + PSI_ROWS
+
+
+@njit(**JIT_FLAGS)
+def mr_psd(F, c10, c01, kappa, vol, eps, T, S):
+    """Whether the true dP/dF at ``F`` is positive semi-definite (every one of its nine eigenvalues
+    at least ``-PSD_MARGIN (c10 + c01)``) with no clamp active (the test of :func:`mr_stress`): then
+    its projection is itself and :func:`mr_node_hessian` gives the projected element Hessian
+    without an SVD. ``T (3, 3, 3)`` and ``S (>= PSD_ROWS, 3)`` scratch.
+
+    The eigenvalues are those of :func:`mr_modes` from the principal stretches alone: the squared
+    ones are the eigenvalues of ``C = F^T F`` in closed form (trigonometric), the smallest stretch is
+    ``J / (s0 s1)``; then the 3x3 Hessian in the stretches (a Cholesky factorisation of it shifted
+    by the margin) and the pairs' divided differences."""
+    cof = S[0:3]
+    C = S[0:3]   # cof F is not needed once J and I1 are known
+    s = S[3]
+    g = S[4]
+    H = S[5:8]
+    J, I1, ok = _unclamped_start(F, eps, cof)
+    if not ok:
+        return False
+    for i in range(3):
+        for j in range(i, 3):
+            C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
+    q = I1 / 3.0
+    d0, d1, d2 = C[0, 0] - q, C[1, 1] - q, C[2, 2] - q
+    off = C[0, 1] * C[0, 1] + C[0, 2] * C[0, 2] + C[1, 2] * C[1, 2]
+    p = math.sqrt((d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * off) / 6.0)
+    if p <= 1e-14 * q:   # C a multiple of the identity
+        l0 = l1 = q
+    else:
+        det = (d0 * (d1 * d2 - C[1, 2] * C[1, 2]) - C[0, 1] * (C[0, 1] * d2 - C[1, 2] * C[0, 2])
+               + C[0, 2] * (C[0, 1] * C[1, 2] - d1 * C[0, 2]))
+        r = min(max(0.5 * det / (p * p * p), -1.0), 1.0)
+        phi = math.acos(r) / 3.0
+        l0 = q + 2.0 * p * math.cos(phi)
+        l2 = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+        l1 = 3.0 * q - l0 - l2
+    s[0] = math.sqrt(l0)
+    s[1] = math.sqrt(max(l1, 0.0))
+    if s[1] <= 0.0:
+        return False
+    s[2] = J / (s[0] * s[1])
+    psi_derivatives(s, c10, c01, kappa, vol, False, g, H, T, S[8:])
+    tol = PSD_MARGIN * (c10 + c01)
+    a = H[0, 0] + tol   # H + tol I positive definite: Cholesky's pivots
+    if a <= 0.0:
+        return False
+    m11 = H[1, 1] + tol - H[0, 1] * H[0, 1] / a
+    if m11 <= 0.0:
+        return False
+    m12 = H[1, 2] - H[0, 1] * H[0, 2] / a
+    if H[2, 2] + tol - H[0, 2] * H[0, 2] / a - m12 * m12 / m11 <= 0.0:
+        return False
+    for i in range(3):
+        for j in range(i + 1, 3):
+            ls, la = _pair_eigenvalues(s[i], s[j], g[i], g[j], H[i, i], H[i, j], H[j, j])
+            if ls < -tol or la < -tol:
+                return False
     return True
 
 

@@ -156,3 +156,50 @@ def test_invariant_fast_path_equals_the_singular_value_form(states, volumetric):
         np.testing.assert_allclose(K, K_ref, rtol=1e-9, atol=1e-11 * np.abs(K_ref).max())
         np.testing.assert_array_equal(K, K.T)
     assert 250 <= fast < len(states)   # most states take the fast path, the squashed ones do not
+
+
+@pytest.mark.parametrize("volumetric", ["log", "quadratic"])
+def test_projected_element_hessian_skips_the_svd_only_where_already_psd(states, volumetric):
+    """The projected element Hessian takes the invariants' true Hessian where ``mr_psd`` finds dP/dF
+    PSD from the principal stretches alone. ``mr_psd`` must agree with the SVD modes' eigenvalues
+    (up to its margin), also at nearly equal stretches where its closed form is least accurate, and
+    the element Hessian must equal the modes' clamped sum either way."""
+    from scipy.spatial.transform import Rotation
+
+    from facesim._kernels.elements import elastic_element_hessian, element_scratch
+    from facesim._kernels.mooney import MODES_ROWS, PSD_MARGIN, PSD_ROWS, mr_modes, mr_psd
+
+    mat = MooneyRivlin(6e-3, 2e-3, 0.4, volumetric)
+    vol = 0 if volumetric == "log" else 1
+    rng = np.random.default_rng(11)
+    R = Rotation.random(120, random_state=5).as_matrix()
+    Rv = Rotation.random(120, random_state=6).as_matrix()
+    near = [np.diag([1.0, 1.0, 1.0]), np.diag([1.2, 1.2, 0.8]), np.diag([0.9, 0.9, 0.9]),
+            np.diag([1.05, 1.05 + 1e-9, 0.93]), np.diag([0.8, 0.8 + 1e-7, 0.8 - 1e-7]), np.diag([1.3, 0.7, 0.7])]
+    D = np.array([near[k % len(near)] for k in range(120)])
+    F_all = np.concatenate([states, R @ D @ Rv.transpose(0, 2, 1), np.diag([1.0, 1.0, -0.5])[None]])
+    X = np.array([[0.0, 0, 0], [1.0, 0.1, 0], [0.2, 1.1, 0.1], [0.1, 0.3, 0.9]])
+    Dm = (X[1:] - X[0]).T
+    Bm, V0 = np.linalg.inv(Dm), abs(np.linalg.det(Dm)) / 6
+    tet = np.arange(4)
+    b = np.vstack([-Bm.sum(axis=0), Bm])
+    Pm, lam, Q, work = np.empty((3, 3)), np.empty(9), np.empty((9, 3, 3)), np.empty((MODES_ROWS, 3))
+    T, S, K = np.empty((3, 3, 3)), np.empty((PSD_ROWS, 3)), np.empty((12, 12))
+    scratch = element_scratch()
+    tol = PSD_MARGIN * (mat.c10 + mat.c01)
+    counts = {True: 0, False: 0}
+    for F in F_all:
+        psd = mr_psd(F, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, T, S)
+        mr_modes(F, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, Pm, lam, Q, work)
+        unclamped = np.linalg.det(F) > 0 and np.linalg.svd(F, compute_uv=False).min() >= mat.clamp
+        if lam.min() < -2 * tol or lam.min() > -0.5 * tol:   # clear of the margin's band
+            assert psd == (unclamped and lam.min() >= -tol), (F, lam)
+        counts[psd] += 1
+        elastic_element_hessian(X @ F.T, tet, Bm, V0, mat.c10, mat.c01, mat.kappa, vol, mat.clamp, True, K,
+                                scratch)
+        D_proj = np.einsum("m,mij,mkl->ijkl", np.maximum(lam, 0.0), Q, Q)
+        K_ref = V0 * np.einsum("klmn,al,cn->akcm", D_proj, b, b).reshape(12, 12)
+        scale = np.abs(K_ref).max()
+        np.testing.assert_allclose(K, K_ref, rtol=1e-8, atol=1e-10 * scale + 20 * tol * V0 * (b ** 2).sum())
+        np.testing.assert_array_equal(K, K.T)
+    assert counts[True] >= 40 and counts[False] >= 60   # both paths taken
