@@ -203,13 +203,13 @@ def test_near_equilibrium_cuts_back_an_overshooting_newton_step(box_model, monke
         return 2.0 * du, info, its
 
     monkeypatch.setattr(jac, "counted_cg", overshooting_cg)
-    # chord_rate 0: one chord iteration, then Newton steps (each one doubled)
-    x, iterations, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
+    # one chord iteration, then Newton steps (each one doubled)
+    x, iterations, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_iterations=1)
     assert ok and iterations >= 2
     scale = np.abs(newton.x - eq.x).max()
     np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
     monkeypatch.setattr(jac, "NEWTON_BACKTRACK", ())
-    _, _, _, ok_without = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
+    _, _, _, ok_without = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_iterations=1)
     assert not ok_without
 
 
