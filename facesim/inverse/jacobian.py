@@ -471,7 +471,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         inverse = preconditioner(tangent)   # single precision will do: g is checked in double
         fixed = ~system.free_dof
         u = prob.x_fixed[system.active].ravel().copy()
-        best_u, best_res, stalled = u, np.inf, 0
+        best_u, best_g, best_res, stalled = u, g, np.inf, 0
         U, R, history = [], [], []
         chord = 0
         while True:   # Anderson-accelerated chord iterations
@@ -480,7 +480,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
             if res <= tol:
                 return prob.positions(u), chord, solves, True
             if res < best_res:
-                best_u, best_res, stalled = u, res, 0
+                best_u, best_g, best_res, stalled = u, g, res, 0
             else:
                 stalled += 1
             slow = chord >= CHORD_WINDOW and res > CHORD_RATE ** CHORD_WINDOW * history[-1 - CHORD_WINDOW]
@@ -501,8 +501,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=inverse, dtype=np.float64)
         u = best_u.copy()
         x = best = prob.positions(u)
-        previous = best_res
-        g = prob.energy_and_gradient(x)[1]
+        previous, g = best_res, best_g
         for it in range(max_iterations):
             du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL,
                                        CHORD_NEWTON_MAXITER, M)
