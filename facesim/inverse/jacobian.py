@@ -387,64 +387,33 @@ CHORD_NEWTON_RTOL = 1e-2
 #: step lengths a Newton step of :func:`near_equilibrium` that did not shrink the residual enough is
 #: cut back to (each one gradient), before the solve is given up to a Newton solve with line search
 NEWTON_BACKTRACK = (0.5, 0.25, 0.125)
+CHORD_LOOKAHEAD = 3   # chord iterations worth one Newton step (assembly + a few preconditioned CG iterations)
 #: CG iterations a Newton step of :func:`near_equilibrium` may take on the factor of a nearby tangent
 #: before the solve is given up (as FactorPCG's ``maxiter``): was 50, and the paper-size face's cold
 #: first trial spent 25 s on one CG that failed at 50 (benchmarks/RESULTS.md, session 25)
 CHORD_NEWTON_MAXITER = 25
-#: past iterates the Anderson mixing of :func:`near_equilibrium`'s chord iterations combines
-ANDERSON_DEPTH = 5
-#: chord iterations :func:`near_equilibrium` takes at most before Newton steps (each about as dear as
-#: seven chord iterations on the coarse face: an assembly and a few preconditioned CG iterations)
-CHORD_ITERATIONS = 30
-#: chord iterations in a row without a new least residual after which Newton steps take over
-CHORD_STALL = 4
-#: Newton steps take over where the chord iterations' residual shrank by less than this factor per
-#: iteration over the last ``CHORD_WINDOW`` of them
-CHORD_RATE = 0.7
-CHORD_WINDOW = 3
-#: Newton steps take over where a chord iteration raised the residual
-CHORD_MONOTONE = True
-
-
-def _anderson_step(U, R):
-    """Anderson mixing (type II) of the fixed-point iteration ``u <- u + r(u)``: from the iterates
-    ``U`` and their increments ``R`` (oldest first, the newest last), the next iterate
-    ``u + r - (dU + dR) gamma`` with ``gamma`` the least-squares fit of ``r`` by the differences
-    ``dR`` of the increments (Walker & Ni 2011)."""
-    u, r = U[-1], R[-1]
-    if len(U) == 1:
-        return u + r
-    dR = np.stack([R[i + 1] - R[i] for i in range(len(R) - 1)], axis=1)
-    dU = np.stack([U[i + 1] - U[i] for i in range(len(U) - 1)], axis=1)
-    gamma = np.linalg.lstsq(dR, r, rcond=None)[0]
-    return u + r - (dU + dR) @ gamma
 
 
 def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_iterations: int = 8,
-                     contraction: float = 0.5, frame: float = 0.0, previous=None,
-                     chord_iterations: int = CHORD_ITERATIONS):
+                     contraction: float = 0.5, chord_rate: float = 0.5, frame: float = 0.0, previous=None):
     """Equilibrium of ``controls`` from ``x0 (n, 3)`` (e.g. :meth:`EquilibriumJacobian.predict`)
     with the factorised tangent ``tangent`` of a nearby equilibrium (``EquilibriumJacobian.tangent``)
     in place of an AMG hierarchy or a fresh factorisation.
 
     Chord iterations ``u <- u - K0^-1 g(u)`` (a gradient and two triangular solves each, no
-    assembly), accelerated by Anderson mixing of the last ``ANDERSON_DEPTH`` iterates: up to
-    ``chord_iterations`` of them while each lowers the residual (``CHORD_MONOTONE``) and the last
-    ``CHORD_WINDOW`` together shrank it by ``CHORD_RATE`` per iteration or better. Then, from the
-    iterate of least residual, up to ``max_iterations`` Newton steps with the true tangent, solved
-    by CG preconditioned with ``K0`` (a few iterations: the two tangents are close). On the demo
-    clip's 165 trial equilibria the mixing took 28.7 s against 36.5 s for plain chord iterations
-    under the same rules; without the monotone rule the paper-size face's Newton steps started from
-    a mixed iterate whose tangent CG could not solve, and a tracked frame fell back to a Newton
-    solve of 190 s (benchmarks/RESULTS.md, session 30).
+    assembly) while they shrink the residual by ``chord_rate`` or better and ``CHORD_LOOKAHEAD``
+    more at that rate would converge; then Newton steps with the true tangent at ``u``, solved by
+    CG preconditioned with ``K0`` (a few iterations: the two tangents are close).
 
     Converged when ``|g|`` meets the simulator's Newton tolerance (``rtol`` times the reference
     force of :meth:`FaceSimulator.force_scale` at this start, plus ``atol``), as
-    :meth:`FaceSimulator.equilibrium` requires. Gives up (``converged=False``) when a Newton step
-    does not shrink the residual by ``contraction`` (after cutting it back along its direction), or
-    CG fails -- the tangent here is then too far from ``K0`` -- or after ``max_iterations`` Newton
-    steps. Returns ``(x (n, 3), iterations (chord and Newton), linear solves, converged)``; ``x`` is
-    the iterate of least residual, a warm start for Newton if not converged.
+    :meth:`FaceSimulator.equilibrium` requires. A chord iteration that does not shrink the residual
+    is undone and the solve goes on with Newton steps from the best iterate (once: on the demo clip
+    this keeps 7 of the 12 trial equilibria of 24 frames that used to fall back to a Newton solve
+    from scratch). Gives up (``converged=False``) when a Newton step does not shrink the residual
+    by ``contraction``, a chord iteration fails a second time, or CG fails -- the tangent here is then too
+    far from ``K0`` -- or after ``max_iterations``. Returns ``(x (n, 3), iterations, linear solves,
+    converged)``; ``x`` is the iterate of least residual, a warm start for Newton if not converged.
 
     The start is ``x0`` with the bones placed exactly and their difference from ``x0``'s carried
     into the flesh (:meth:`FaceSimulator.predict`, as :meth:`FaceSimulator.equilibrium` starts),
@@ -460,70 +429,69 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     solves = 0
     with single_blas_thread():
         prob = Problem(sim.terms + extras, system, sim.predict(controls, x0), controls.a)
-        g = prob.energy_and_gradient(prob.x_fixed)[1]
+        g0 = prob.energy_and_gradient(prob.x_fixed)[1]
         if previous is not None:
             moved = sim.predict(controls, previous)
             g_moved = prob.energy_and_gradient(moved)[1]
-            if np.linalg.norm(g_moved) < np.linalg.norm(g):
-                prob, g = Problem(sim.terms + extras, system, moved, controls.a), g_moved
+            if np.linalg.norm(g_moved) < np.linalg.norm(g0):
+                prob, g0 = Problem(sim.terms + extras, system, moved, controls.a), g_moved
         newton = sim.options.newton
         tol = newton.rtol * sim.force_scale(controls, extras, prob.x_fixed) + newton.atol
-        inverse = preconditioner(tangent)   # single precision will do: g is checked in double
-        fixed = ~system.free_dof
         u = prob.x_fixed[system.active].ravel().copy()
-        best_u, best_g, best_res, stalled = u, g, np.inf, 0
-        U, R, history = [], [], []
-        chord = 0
-        while True:   # Anderson-accelerated chord iterations
-            res = float(np.linalg.norm(g))
-            history.append(res)
-            if res <= tol:
-                return prob.positions(u), chord, solves, True
-            if res < best_res:
-                best_u, best_g, best_res, stalled = u, g, res, 0
-            else:
-                stalled += 1
-            slow = chord >= CHORD_WINDOW and res > CHORD_RATE ** CHORD_WINDOW * history[-1 - CHORD_WINDOW]
-            rose = CHORD_MONOTONE and chord > 0 and res > history[-2]
-            if chord >= chord_iterations or stalled >= CHORD_STALL or slow or rose or not np.isfinite(res):
-                break
-            r = inverse(-g)
-            solves += 1
-            r[fixed] = 0.0
-            U.append(u)
-            R.append(r)
-            if len(U) > ANDERSON_DEPTH + 1:
-                del U[0], R[0]
-            u = _anderson_step(U, R)
-            g = prob.energy_and_gradient(prob.positions(u))[1]
-            chord += 1
-        # Newton steps from the iterate of least residual, CG preconditioned by K0
+        x = best = prob.x_fixed
+        previous, chord = np.inf, True
+        inverse = preconditioner(tangent)   # single precision will do: g is checked in double
         M = spla.LinearOperator((system.n_dofs, system.n_dofs), matvec=inverse, dtype=np.float64)
-        u = best_u.copy()
-        x = best = prob.positions(u)
-        previous, g = best_res, best_g
-        for it in range(max_iterations):
-            du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL,
-                                       CHORD_NEWTON_MAXITER, M)
-            solves += its
-            if info != 0:
-                return best, chord + it, solves, False
-            du[fixed] = 0.0
-            # a step that does not shrink the residual enough (contact coming on, a soft direction
-            # of a wide step): shorter steps along it, each one more gradient, before giving up
-            for alpha in (1.0,) + NEWTON_BACKTRACK:
-                x = prob.positions(u + alpha * du)
-                g = prob.energy_and_gradient(x)[1]
-                res = float(np.linalg.norm(g))
-                if np.isfinite(res) and res <= (1.0 - alpha * (1.0 - contraction)) * previous:
-                    break
-            else:
-                return best, chord + it + 1, solves, False
-            u = u + alpha * du
+        best_u = u.copy()
+        retried = False
+        du = None
+        for it in range(max_iterations + 1):
+            g = g0 if it == 0 else prob.energy_and_gradient(x)[1]
+            res = float(np.linalg.norm(g))
             if res <= tol:
-                return x, chord + it + 1, solves, True
-            best, previous = x, res
-    return best, chord + max_iterations, solves, False
+                return x, it, solves, True
+            rate = res / previous
+            if chord and not retried and it > 0 and it < max_iterations and rate > 1.0:
+                # the chord step overshot (the tangent changed: contact came on, say): back to the
+                # best iterate and on with Newton steps there, CG preconditioned by K0, rather than
+                # giving the whole solve up to a Newton solve from scratch
+                retried, chord = True, False
+                x, u, res = best, best_u.copy(), previous
+                g = prob.energy_and_gradient(x)[1]
+            elif not chord and it < max_iterations and not rate <= contraction:
+                # a Newton step that overshot (contact coming on, a soft direction of a wide step):
+                # shorter steps along it, each one more gradient, before giving the solve up
+                for alpha in NEWTON_BACKTRACK:
+                    u = best_u + alpha * du
+                    x = prob.positions(u)
+                    g = prob.energy_and_gradient(x)[1]
+                    res = float(np.linalg.norm(g))
+                    if res <= (1.0 - alpha * (1.0 - contraction)) * previous:
+                        break
+                else:
+                    return best, it, solves, False
+                if res <= tol:
+                    return x, it, solves, True
+                best, best_u, previous = x, u.copy(), res
+            elif it == max_iterations or not np.isfinite(res) or rate > (1.0 if chord else contraction):
+                return best, it, solves, False
+            else:
+                best, best_u, previous = x, u.copy(), res
+                # stay with chord iterations while a few more of them at this rate would converge
+                chord = chord and rate <= chord_rate and res * rate ** CHORD_LOOKAHEAD <= tol
+            if chord:
+                du = inverse(-g)
+                solves += 1
+            else:
+                du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL,
+                                           CHORD_NEWTON_MAXITER, M)
+                solves += its
+                if info != 0:
+                    return best, it, solves, False
+            du[~system.free_dof] = 0.0
+            u += du
+            x = prob.positions(u)
+    return best, max_iterations, solves, False   # not reached: the loop returns
 
 
 __all__ = ["ControlSpace", "EquilibriumJacobian", "equilibrium_jacobian", "factorised_tangent", "marker_jacobian",

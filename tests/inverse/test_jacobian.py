@@ -203,13 +203,13 @@ def test_near_equilibrium_cuts_back_an_overshooting_newton_step(box_model, monke
         return 2.0 * du, info, its
 
     monkeypatch.setattr(jac, "counted_cg", overshooting_cg)
-    # one chord iteration, then Newton steps (each one doubled)
-    x, iterations, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_iterations=1)
+    # chord_rate 0: one chord iteration, then Newton steps (each one doubled)
+    x, iterations, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
     assert ok and iterations >= 2
     scale = np.abs(newton.x - eq.x).max()
     np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
     monkeypatch.setattr(jac, "NEWTON_BACKTRACK", ())
-    _, _, _, ok_without = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_iterations=1)
+    _, _, _, ok_without = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
     assert not ok_without
 
 
@@ -236,42 +236,3 @@ def test_pardiso_superlu_and_amg_jacobians_agree(box_model):
     np.testing.assert_allclose(xp, xs, atol=1e-6)
     with pytest.raises(FacesimError, match="linear_solver"):
         equilibrium_jacobian(sim, controls, x, space, linear_solver="mumps")
-
-
-def test_anderson_mixing_solves_a_linear_fixed_point_like_gmres():
-    """On a linear fixed-point map ``u <- u + (b - A u)`` in 4 unknowns, Anderson mixing of depth 5
-    reaches the solution in at most 5 steps (it is GMRES there, in exact arithmetic), where the plain
-    iteration with spectral radius 0.9 needs over a hundred."""
-    from facesim.inverse.jacobian import _anderson_step
-
-    rng = np.random.default_rng(3)
-    Q = np.linalg.qr(rng.normal(size=(4, 4)))[0]
-    A = Q @ np.diag([0.1, 0.5, 1.0, 1.9]) @ Q.T + 0.05 * rng.normal(size=(4, 4))   # I - A: radius ~0.9
-    b = rng.normal(size=4)
-    exact = np.linalg.solve(A, b)
-    U, R, u = [], [], np.zeros(4)
-    for k in range(6):
-        U.append(u)
-        R.append(b - A @ u)
-        u = _anderson_step(U, R)
-    assert np.abs(u - exact).max() < 1e-9 * np.abs(exact).max()
-    plain = np.zeros(4)
-    for k in range(6):
-        plain = plain + (b - A @ plain)
-    assert np.abs(plain - exact).max() > 1e-3 * np.abs(exact).max()
-
-
-def test_near_equilibrium_anderson_chord_iterations_alone(box_model, monkeypatch):
-    """The Anderson-accelerated chord iterations alone (no Newton step) reach Newton's equilibrium,
-    in fewer iterations than plain chord iterations (depth 0)."""
-    import facesim.inverse.jacobian as jac
-
-    sim, eq, J, dc, target = _near_case(box_model)
-    newton = sim.equilibrium(target, x0=J.predict(dc))
-    x, its, solves, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, max_iterations=0)
-    assert ok and solves == its
-    scale = np.abs(newton.x - eq.x).max()
-    np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
-    monkeypatch.setattr(jac, "ANDERSON_DEPTH", 0)
-    _, its_plain, _, ok_plain = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, max_iterations=0)
-    assert ok_plain and its < its_plain   # 7 against 10 here
