@@ -183,6 +183,20 @@ def _compute_threads() -> int:
     return int(numba.get_num_threads())
 
 
+def _solve_threads() -> int:
+    """MKL threads for PARDISO's triangular solves: ``FACESIM_SOLVE_THREADS`` if set (1 is the
+    single-threaded solve of before), else :func:`_compute_threads`. Two threads: the paper-size
+    face's tracked frames 20.5 against 27.2 s, its cold frame 82 against 108 s, the coarse demo
+    clip unchanged (benchmarks/RESULTS.md, session 31)."""
+    value = os.environ.get("FACESIM_SOLVE_THREADS", "").strip()
+    if value:
+        try:
+            return max(1, int(value))
+        except ValueError:
+            raise FacesimError(f"FACESIM_SOLVE_THREADS={value!r}: expected a whole number of threads") from None
+    return _compute_threads()
+
+
 def _import_pypardiso():
     """``import pypardiso`` (ImportError when absent), told first where pip's mkl put ``mkl_rt``
     (this environment's ``lib``, or ``Library/bin`` on Windows) when ``PYPARDISO_MKL_RT`` does not
@@ -399,7 +413,9 @@ class PardisoFactor:
         """``A^-1 b`` to the factor's precision (single: relative residual ~1e-6)."""
         b = np.asarray(b, dtype=np.float64)
         rhs = np.asfortranarray(b, dtype=self.dtype) if b.ndim == 2 else np.ascontiguousarray(b, dtype=self.dtype)
-        with _mkl_threads(1):   # triangular solves: threads cost more than they give
+        # the triangular solves on numba's threads too: on two cores 1.5x faster from the medium
+        # face's factor up (paper size 0.17-0.20 s against 0.29-0.32 s), even on the coarse face's
+        with _mkl_threads(_solve_threads()):
             x = self._handle.call(33, self.data, rhs)[0]
         return np.ascontiguousarray(x, dtype=np.float64)
 

@@ -249,6 +249,36 @@ def test_pardiso_single_precision_factor_refines_to_double():
     assert np.linalg.norm(S @ x - b) < 1e-9 * np.linalg.norm(b)
 
 
+def test_pardiso_solves_on_one_and_two_threads_agree(monkeypatch):
+    """The triangular solves run on numba's thread count unless ``FACESIM_SOLVE_THREADS`` says
+    otherwise; one and two threads give the same single-precision solution (a threaded solve of a
+    factor made on other threads can be wrong: MKL's two-level factorisation, not used here, gives
+    residuals of order 1 then), a bad setting is a one-line error."""
+    pytest.importorskip("pypardiso")
+    import numba
+
+    from facesim.fem.linear import PardisoFactor, _solve_threads
+
+    rng = np.random.default_rng(9)
+    A = (laplacian_3d(16) + sp.diags(rng.uniform(0, 5, 16 ** 3))).tocsr()
+    B = rng.normal(size=(A.shape[0], 3))
+    f = PardisoFactor(A)
+    monkeypatch.delenv("FACESIM_SOLVE_THREADS", raising=False)
+    assert _solve_threads() == numba.get_num_threads()
+    out = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("FACESIM_SOLVE_THREADS", n)
+        assert _solve_threads() == int(n)
+        out[n] = (f.precondition(B[:, 0]), f.precondition(B))
+        for x, b in ((out[n][0], B[:, 0]), (out[n][1], B)):
+            assert np.linalg.norm(A @ x - b) < 1e-5 * np.linalg.norm(b)
+    np.testing.assert_allclose(out["2"][0], out["1"][0], rtol=0, atol=1e-5 * np.abs(out["1"][0]).max())
+    np.testing.assert_allclose(out["2"][1], out["1"][1], rtol=0, atol=1e-5 * np.abs(out["1"][1]).max())
+    monkeypatch.setenv("FACESIM_SOLVE_THREADS", "two")
+    with pytest.raises(FacesimError, match="FACESIM_SOLVE_THREADS='two': expected a whole number"):
+        _solve_threads()
+
+
 def test_pardiso_factor_keeps_the_matrix_as_given_until_released():
     """A float64 sparse matrix is kept as given (no copy: the refinement's residual uses it, BSR
     too); after release_matrix the factor still preconditions (single precision, ~1e-6) and its
