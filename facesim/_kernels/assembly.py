@@ -1,4 +1,4 @@
-"""Assembly helpers: element colouring and Dirichlet rows in a 3x3-block (BSR) matrix."""
+"""Assembly helpers: colouring of element chunks and Dirichlet rows in a 3x3-block (BSR) matrix."""
 
 import numpy as np
 from numba import njit
@@ -9,36 +9,45 @@ MAX_COLOURS = 128
 
 
 @njit(**JIT_FLAGS)
-def colour_elements(tets, elems, n_nodes):
-    """Greedy colouring of the listed tets so that no two tets of a colour share a node.
+def colour_chunks(tets, elems, chunk_ptr, n_nodes):
+    """Greedy colouring of chunks of the listed tets -- chunk ``k`` is
+    ``elems[chunk_ptr[k]:chunk_ptr[k + 1]]`` -- so that no two chunks of a colour share a node
+    (chunks of one tet each: the tets' own colouring).
 
-    Returns ``colour (len(elems),) int32``, or -1 everywhere if more than 128 colours are
-    needed (never seen on tet meshes: greedy needs about 20-40).
+    Returns ``colour (n_chunks,) int32``, or -1 everywhere if more than ``MAX_COLOURS`` colours
+    are needed (tets one by one: about 20-40; chunks of a bandwidth-ordered mesh: a handful).
     """
     used = np.zeros((n_nodes, 2), dtype=np.uint64)
-    colour = np.empty(elems.shape[0], dtype=np.int32)
-    for i in range(elems.shape[0]):
-        t = tets[elems[i]]
-        m0 = used[t[0], 0] | used[t[1], 0] | used[t[2], 0] | used[t[3], 0]
-        m1 = used[t[0], 1] | used[t[1], 1] | used[t[2], 1] | used[t[3], 1]
+    n_chunks = chunk_ptr.shape[0] - 1
+    colour = np.empty(n_chunks, dtype=np.int32)
+    for k in range(n_chunks):
+        m0 = np.uint64(0)
+        m1 = np.uint64(0)
+        for i in range(chunk_ptr[k], chunk_ptr[k + 1]):
+            t = tets[elems[i]]
+            for a in range(4):
+                m0 |= used[t[a], 0]
+                m1 |= used[t[a], 1]
         c = -1
-        for k in range(64):
-            if not (m0 >> np.uint64(k)) & np.uint64(1):
-                c = k
+        for j in range(64):
+            if not (m0 >> np.uint64(j)) & np.uint64(1):
+                c = j
                 break
         if c < 0:
-            for k in range(64):
-                if not (m1 >> np.uint64(k)) & np.uint64(1):
-                    c = 64 + k
+            for j in range(64):
+                if not (m1 >> np.uint64(j)) & np.uint64(1):
+                    c = 64 + j
                     break
         if c < 0:
             colour[:] = -1
             return colour
-        colour[i] = c
+        colour[k] = c
         word = c // 64
         bit = np.uint64(1) << np.uint64(c % 64)
-        for a in range(4):
-            used[t[a], word] |= bit
+        for i in range(chunk_ptr[k], chunk_ptr[k + 1]):
+            t = tets[elems[i]]
+            for a in range(4):
+                used[t[a], word] |= bit
     return colour
 
 

@@ -177,20 +177,20 @@ def elastic_element_hessian(x, tet, Bm, V0, c10, c01, kappa, vol, eps, project, 
 
 
 @njit(parallel=True, **JIT_FLAGS)
-def elastic_assemble(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, color_ptr, color_elems, e2b, data):
-    """Add the Hessians of the coloured tets into BSR ``data``; one parallel loop per colour."""
-    for col in range(color_ptr.shape[0] - 1):
-        lo = color_ptr[col]
-        n = color_ptr[col + 1] - lo
-        nc = _chunks(n)
-        for c in prange(nc):
+def elastic_assemble(x, tets, Bm, V0, c10, c01, kappa, vol, eps, project, colour_ptr, chunk_ptr, e2b, data):
+    """Add the Hessians of tets into BSR ``data``. The tets' arrays (``tets, Bm, V0, c10, c01,
+    kappa`` and the block map ``e2b``) are in chunk order: chunk ``k`` is items ``chunk_ptr[k]:
+    chunk_ptr[k + 1]``, the chunks grouped by colour (chunks ``colour_ptr[c]:colour_ptr[c + 1]``);
+    one parallel loop over the chunks of each colour (:class:`~facesim.fem.system.DofSystem`)."""
+    for col in range(colour_ptr.shape[0] - 1):
+        first = colour_ptr[col]
+        for c in prange(colour_ptr[col + 1] - first):
             K = np.empty((12, 12))
             scratch = element_scratch()
-            for i in range(c * n // nc, (c + 1) * n // nc):
-                e = color_elems[lo + i]
-                elastic_element_hessian(x, tets[e], Bm[e], V0[e], c10[e], c01[e], kappa[e], vol, eps, project, K,
+            for i in range(chunk_ptr[first + c], chunk_ptr[first + c + 1]):
+                elastic_element_hessian(x, tets[i], Bm[i], V0[i], c10[i], c01[i], kappa[i], vol, eps, project, K,
                                         scratch)
-                _add_block(data, e2b[e], K)
+                _add_block(data, e2b[i], K)
 
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -286,24 +286,28 @@ def fibre_element_hessian(x, tet, Bm, V0, d, sp, sa, project, K):
 
 @njit(parallel=True, **JIT_FLAGS)
 def fibre_assemble(x, tets, Bm, V0, ent_ptr, ent_fibre, ent_muscle, ent_fraction, sigma, gain, a, project,
-                   color_ptr, color_elems, e2b, data):
+                   colour_ptr, chunk_ptr, chunk_elems, e2b, data):
     """Add the fibre Hessians into BSR ``data``: entries grouped by tet (``ent_ptr``, CSR over tets),
-    tets coloured as for the flesh."""
-    for col in range(color_ptr.shape[0] - 1):
-        lo = color_ptr[col]
-        for i in prange(color_ptr[col + 1] - lo):
-            e = color_elems[lo + i]
-            if ent_ptr[e] == ent_ptr[e + 1]:
-                continue
+    tets in the flesh's coloured chunks (:func:`elastic_assemble`)."""
+    for col in range(colour_ptr.shape[0] - 1):
+        first = colour_ptr[col]
+        for c in prange(colour_ptr[col + 1] - first):
             K = np.empty((12, 12))
-            Ksum = np.zeros((12, 12))
-            for j in range(ent_ptr[e], ent_ptr[e + 1]):
-                sp, sa = _entry_scales(j, ent_muscle, ent_fraction, sigma, gain, a, False)
-                fibre_element_hessian(x, tets[e], Bm[e], V0[e], ent_fibre[j], sp, sa, project, K)
+            Ksum = np.empty((12, 12))
+            for i in range(chunk_ptr[first + c], chunk_ptr[first + c + 1]):
+                e = chunk_elems[i]
+                if ent_ptr[e] == ent_ptr[e + 1]:
+                    continue
                 for r in range(12):
-                    for c in range(12):
-                        Ksum[r, c] += K[r, c]
-            _add_block(data, e2b[e], Ksum)
+                    for q in range(12):
+                        Ksum[r, q] = 0.0
+                for j in range(ent_ptr[e], ent_ptr[e + 1]):
+                    sp, sa = _entry_scales(j, ent_muscle, ent_fraction, sigma, gain, a, False)
+                    fibre_element_hessian(x, tets[e], Bm[e], V0[e], ent_fibre[j], sp, sa, project, K)
+                    for r in range(12):
+                        for q in range(12):
+                            Ksum[r, q] += K[r, q]
+                _add_block(data, e2b[e], Ksum)
 
 
 # ---------------------------------------------------------------- step limiting

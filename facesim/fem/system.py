@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from facesim._arrays import unique_ints
-from facesim._kernels.assembly import colour_elements, dirichlet_rows
+from facesim._kernels.assembly import colour_chunks, dirichlet_rows
 from facesim._kernels.elements import rest_shape
 from facesim.errors import FacesimError
 
@@ -34,6 +34,54 @@ class RestShape:
                                "orient every tet so that (x1-x0).((x2-x0)x(x3-x0)) > 0")
 
 
+#: chunks the elements of a :class:`DofSystem` are cut into for parallel assembly (at most; at least
+#: ``MIN_CHUNK`` tets each): a constant, so the colouring does not depend on the thread count
+CHUNKS = 64
+MIN_CHUNK = 32
+
+
+def _bandwidth_order(rows: np.ndarray, n: int) -> np.ndarray:
+    """Reverse Cuthill-McKee order of the ``n`` rows coupled by the elements' ``rows (k, 4)`` (-1:
+    no row): ``order[i]`` is the old row that becomes row ``i``."""
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    if n == 0:
+        return np.zeros(0, np.int64)
+    a = np.repeat(rows, 4, axis=1).ravel()
+    b = np.tile(rows, (1, 4)).ravel()
+    ok = (a >= 0) & (b >= 0)
+    graph = sp.csr_matrix((np.ones(int(ok.sum()), np.int8), (a[ok], b[ok])), shape=(n, n))
+    return np.asarray(reverse_cuthill_mckee(graph, symmetric_mode=True), dtype=np.int64)
+
+
+def _coloured_chunks(tets, elems, row_of, n_nodes):
+    """``(colour_ptr, chunk_ptr, chunk_elems)`` of :class:`DofSystem`: ``elems`` sorted by their
+    least and greatest row, cut into up to ``CHUNKS`` chunks of equal size, the chunks coloured
+    greedily and grouped by colour. Where that needs too many colours (a mesh that a bandwidth
+    order does not narrow), chunks of one tet each, as the tets' own colouring."""
+    if len(elems) == 0:
+        return np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64)
+    r = row_of[tets[elems]]
+    r_low = np.where(r >= 0, r, np.iinfo(np.int64).max).min(axis=1)
+    order = np.lexsort((r.max(axis=1), r_low))
+    elems = np.ascontiguousarray(elems[order], dtype=np.int64)
+    n_chunks = int(min(CHUNKS, max(1, len(elems) // MIN_CHUNK)))
+    for chunk_ptr in (np.linspace(0, len(elems), n_chunks + 1).astype(np.int64),
+                      np.arange(len(elems) + 1, dtype=np.int64)):
+        colour = colour_chunks(tets, elems, chunk_ptr, n_nodes)
+        if colour[0] >= 0:
+            break
+    else:
+        raise FacesimError("assembly: element colouring needs more than 128 colours (is the mesh valid?)")
+    by_colour = np.argsort(colour, kind="stable")
+    sizes = np.diff(chunk_ptr)[by_colour]
+    # chunk order within a colour and tet order within a chunk kept
+    chunk_elems = elems[np.argsort(np.repeat(colour, np.diff(chunk_ptr)), kind="stable")]
+    new_ptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    colour_ptr = np.searchsorted(colour[by_colour], np.arange(int(colour.max()) + 2)).astype(np.int64)
+    return colour_ptr, new_ptr, np.ascontiguousarray(chunk_elems, dtype=np.int64)
+
+
 class DofSystem:
     """Unknowns and matrix pattern for the elements ``elems`` of a mesh with ``fixed`` components.
 
@@ -41,9 +89,18 @@ class DofSystem:
     are left out of the system; prescribed components of the remaining ("active") nodes keep
     their rows with a unit diagonal, so the matrix stays 3x3-blocked (what AMG wants).
 
-    Attributes: ``tets``; ``active (N,)`` node ids of the system rows; ``row_of (n,)`` node -> block row
-    or -1; ``fixed_active (N, 3)``; ``indptr, indices`` (BSR pattern); ``e2b (m, 4, 4)`` block
-    index per element node pair or -1; ``colour_ptr, colour_elems`` elements grouped by colour.
+    Attributes: ``tets``; ``active (N,)`` node ids of the system rows, in reverse Cuthill-McKee
+    order of the mesh graph (not sorted); ``row_of (n,)`` node -> block row or -1;
+    ``fixed_active (N, 3)``; ``indptr, indices`` (BSR pattern); ``e2b (m, 4, 4)`` block index per
+    element node pair or -1 (``chunk_e2b``: the same in chunk order); ``chunk_elems`` the elements
+    sorted by their first row and cut into
+    chunks ``chunk_elems[chunk_ptr[k]:chunk_ptr[k + 1]]``, grouped by colour (chunks
+    ``colour_ptr[c]:colour_ptr[c + 1]``): no two chunks of a colour share a node, so each colour
+    assembles in parallel, and the tets of a chunk, neighbours in the mesh, add into nearby rows.
+
+    Assembly in that order against the tets coloured one by one (each colour a pass over the
+    whole matrix, consecutive tets apart): the medium face's true tangent on one thread 1.3 against
+    3.0 us a tet (benchmarks/RESULTS.md, session 31).
     """
 
     def __init__(self, tets: np.ndarray, n_nodes: int, fixed: np.ndarray, elems: np.ndarray):
@@ -58,6 +115,10 @@ class DofSystem:
         used[tets[self.elems].ravel()] = True
         self.active = np.flatnonzero(used & ~fixed.all(axis=1)).astype(np.int64)
         self.row_of = np.full(n_nodes, -1, np.int64)
+        self.row_of[self.active] = np.arange(len(self.active))
+        # rows in reverse Cuthill-McKee order: a tet's rows, and its neighbours', close together
+        r = self.row_of[tets[self.elems]]
+        self.active = self.active[_bandwidth_order(r, len(self.active))]
         self.row_of[self.active] = np.arange(len(self.active))
         self.fixed_active = np.ascontiguousarray(fixed[self.active])
         self.free_dof = ~self.fixed_active.ravel()
@@ -76,13 +137,8 @@ class DofSystem:
         e2b[ok] = np.searchsorted(uniq, key[ok])
         self.e2b = np.full((len(tets), 4, 4), -1, np.int64)
         self.e2b[self.elems] = e2b.reshape(-1, 4, 4)
-        colour = colour_elements(tets, self.elems, n_nodes)
-        if len(colour) and colour[0] < 0:
-            raise FacesimError("assembly: element colouring needs more than 128 colours (is the mesh valid?)")
-        order = np.argsort(colour, kind="stable")
-        self.colour_elems = np.ascontiguousarray(self.elems[order])
-        n_col = int(colour.max()) + 1 if len(colour) else 0
-        self.colour_ptr = np.searchsorted(colour[order], np.arange(n_col + 1)).astype(np.int64)
+        self.colour_ptr, self.chunk_ptr, self.chunk_elems = _coloured_chunks(tets, self.elems, self.row_of, n_nodes)
+        self.chunk_e2b = np.ascontiguousarray(self.e2b[self.chunk_elems], dtype=np.int32)   # in chunk order
         self.n_blocks = len(self.indices)
 
     @property

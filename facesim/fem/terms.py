@@ -7,6 +7,8 @@ activations; energies in mJ (N mm), gradients ``(n, 3)`` in N, Hessians in N/mm,
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -59,6 +61,7 @@ class ElasticTerm(NodeTerm):
         self.vol = VOLUMETRIC[volumetric]
         self.clamp = float(clamp)
         self.elems = np.ascontiguousarray(np.arange(m) if elems is None else elems, dtype=np.int64)
+        self._by_system = weakref.WeakKeyDictionary()   # DofSystem -> its chunk-ordered tet arrays
 
     def _args(self):
         r = self.rest
@@ -79,9 +82,31 @@ class ElasticTerm(NodeTerm):
     def gradient(self, x, a=None) -> np.ndarray:
         return self.energy_and_gradient(x, a)[1]
 
+    def __getstate__(self):   # pickled (to a worker) without the per-system copies
+        state = dict(self.__dict__)
+        state["_by_system"] = None
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._by_system = weakref.WeakKeyDictionary()
+
+    def _chunked(self, system: DofSystem) -> tuple:
+        """The tets' arrays of :meth:`_args` in ``system``'s chunk order (``system.chunk_elems``), made
+        once per system: assembly then reads them in order rather than scattered over the mesh
+        (the medium face's true tangent 0.89 against 1.11 us a tet on two threads,
+        benchmarks/RESULTS.md, session 31)."""
+        chunked = self._by_system.get(system)
+        if chunked is None:
+            e = system.chunk_elems
+            r = self.rest
+            chunked = tuple(np.ascontiguousarray(v[e]) for v in (r.tets, r.Bm, r.V0, self.c10, self.c01, self.kappa))
+            self._by_system[system] = chunked
+        return chunked
+
     def add_hessian(self, x, a, system: DofSystem, data: np.ndarray, project: bool = True) -> None:
-        K.elastic_assemble(_positions(x, len(self.rest.X)), *self._args(), bool(project), system.colour_ptr,
-                           system.colour_elems, system.e2b, data)
+        K.elastic_assemble(_positions(x, len(self.rest.X)), *self._chunked(system), self.vol, self.clamp,
+                           bool(project), system.colour_ptr, system.chunk_ptr, system.chunk_e2b, data)
 
     def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
         return _own_hessian(self, x, a, project, self.elems)
@@ -166,7 +191,7 @@ class MuscleTerm(NodeTerm):
         r = self.rest
         K.fibre_assemble(_positions(x, len(r.X)), r.tets, r.Bm, r.V0, self.ent_ptr, self.fibre, self.muscle,
                          self.fraction, self.sigma, self.gain, self._a(a), bool(project), system.colour_ptr,
-                         system.colour_elems, system.e2b, data)
+                         system.chunk_ptr, system.chunk_elems, system.e2b, data)
 
     def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
         return _own_hessian(self, x, a, project, unique_ints(self.tet))

@@ -121,10 +121,13 @@ def test_colouring_and_dirichlet_rows(small_block):
     sysm = DofSystem(T, len(X), fixed, np.arange(len(T)))
     assert len(sysm.active) == len(X) - (X[:, 0] < 1e-9).sum()
     for c in range(len(sysm.colour_ptr) - 1):
-        el = sysm.colour_elems[sysm.colour_ptr[c]:sysm.colour_ptr[c + 1]]
-        nodes = T[el].ravel()
-        assert len(np.unique(nodes)) == len(nodes)   # no node shared within a colour
-    assert sorted(sysm.colour_elems) == list(range(len(T)))
+        chunks = [sysm.chunk_elems[sysm.chunk_ptr[k]:sysm.chunk_ptr[k + 1]]
+                  for k in range(sysm.colour_ptr[c], sysm.colour_ptr[c + 1])]
+        nodes = np.concatenate([np.unique(T[el]) for el in chunks])
+        assert len(np.unique(nodes)) == len(nodes)   # no node shared by two chunks of a colour
+    assert sorted(sysm.chunk_elems) == list(range(len(T)))
+    assert sorted(sysm.active) == sorted(np.flatnonzero(X[:, 0] >= 1e-9))   # rows: a permutation of the nodes
+    assert (sysm.row_of[sysm.active] == np.arange(len(sysm.active))).all()
     el, _ = _terms(rest)
     data = sysm.new_data()
     el.add_hessian(X + 0.1, None, sysm, data)
