@@ -160,3 +160,14 @@ def interrupt_frame_solves(monkeypatch, at: int = 3) -> None:
         return solve(*args)
 
     monkeypatch.setattr(tracking, "_solve_frame", interrupted)
+
+
+def node_order(H, system):
+    """A matrix over ``system``'s dofs (rows in its own order, :class:`~facesim.fem.system.DofSystem`)
+    as a dense ``(3n, 3n)`` matrix over the mesh's node dofs ``3 node + k``; zero where a node is
+    not in the system."""
+    H = H.toarray() if hasattr(H, "toarray") else np.asarray(H)
+    dof = (3 * np.asarray(system.active)[:, None] + np.arange(3)).ravel()
+    out = np.zeros((3 * system.n_nodes, 3 * system.n_nodes))
+    out[np.ix_(dof, dof)] = H
+    return out

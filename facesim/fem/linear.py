@@ -183,17 +183,26 @@ def _compute_threads() -> int:
     return int(numba.get_num_threads())
 
 
-def _solve_threads() -> int:
-    """MKL threads for PARDISO's triangular solves: ``FACESIM_SOLVE_THREADS`` if set (1 is the
-    single-threaded solve of before), else :func:`_compute_threads`. Two threads: the paper-size
-    face's tracked frames 20.5 against 27.2 s, its cold frame 82 against 108 s, the coarse demo
-    clip unchanged (benchmarks/RESULTS.md, session 31)."""
+#: factor entries from which PARDISO's triangular solves run on :func:`_compute_threads` threads:
+#: the medium face's factor (14.6M) solves 1.5x faster on two, the coarse face's (2.2M) no faster,
+#: and there the idle MKL threads' spinning only competes with numba's (benchmarks/RESULTS.md, session 31)
+THREADED_SOLVE_ABOVE = 5_000_000
+
+
+def _solve_threads(factor_nonzeros: int | None = None) -> int:
+    """MKL threads for PARDISO's triangular solves with a factor of ``factor_nonzeros`` entries:
+    ``FACESIM_SOLVE_THREADS`` if set (1 is the single-threaded solve of before), else
+    :func:`_compute_threads` above ``THREADED_SOLVE_ABOVE`` entries (None: any size) and 1 below.
+    Two threads: the paper-size face's tracked frames 20.5 against 27.2 s, its cold frame 82
+    against 108 s, the coarse demo clip unchanged (benchmarks/RESULTS.md, session 31)."""
     value = os.environ.get("FACESIM_SOLVE_THREADS", "").strip()
     if value:
         try:
             return max(1, int(value))
         except ValueError:
             raise FacesimError(f"FACESIM_SOLVE_THREADS={value!r}: expected a whole number of threads") from None
+    if factor_nonzeros is not None and factor_nonzeros < THREADED_SOLVE_ABOVE:
+        return 1
     return _compute_threads()
 
 
@@ -413,9 +422,9 @@ class PardisoFactor:
         """``A^-1 b`` to the factor's precision (single: relative residual ~1e-6)."""
         b = np.asarray(b, dtype=np.float64)
         rhs = np.asfortranarray(b, dtype=self.dtype) if b.ndim == 2 else np.ascontiguousarray(b, dtype=self.dtype)
-        # the triangular solves on numba's threads too: on two cores 1.5x faster from the medium
-        # face's factor up (paper size 0.17-0.20 s against 0.29-0.32 s), even on the coarse face's
-        with _mkl_threads(_solve_threads()):
+        # the triangular solves of a large factor on numba's threads too: on two cores 1.5x faster
+        # from the medium face's factor up (paper size 0.17-0.20 s against 0.29-0.32 s)
+        with _mkl_threads(_solve_threads(self._nonzeros)):
             x = self._handle.call(33, self.data, rhs)[0]
         return np.ascontiguousarray(x, dtype=np.float64)
 

@@ -18,6 +18,7 @@ from facesim.contact import (
 from facesim.errors import FacesimError
 from facesim.fem import DofSystem, ElasticTerm, NewtonOptions, RestShape, box_mesh
 from facesim.fem.newton import Problem, newton
+from tests.conftest import node_order
 from tests.fem.test_terms import _fd_gradient, _fd_hessian
 
 
@@ -49,7 +50,7 @@ def assembled(term, x, T, project, fixed=None):
     sysm = DofSystem(T, len(x), np.zeros((len(x), 3), bool) if fixed is None else fixed, np.arange(len(T)))
     data = sysm.new_data()
     term.add_hessian(x, None, sysm, data, project)
-    return sysm, sysm.matrix(data, diag=0.0).toarray()
+    return sysm, node_order(sysm.matrix(data, diag=0.0), sysm)
 
 
 def contact_state(which, seed=0):

@@ -250,8 +250,8 @@ def test_pardiso_single_precision_factor_refines_to_double():
 
 
 def test_pardiso_solves_on_one_and_two_threads_agree(monkeypatch):
-    """The triangular solves run on numba's thread count unless ``FACESIM_SOLVE_THREADS`` says
-    otherwise; one and two threads give the same single-precision solution (a threaded solve of a
+    """The triangular solves of a large factor run on numba's thread count, of a small one on one,
+    unless ``FACESIM_SOLVE_THREADS`` says otherwise; one and two threads give the same single-precision solution (a threaded solve of a
     factor made on other threads can be wrong: MKL's two-level factorisation, not used here, gives
     residuals of order 1 then), a bad setting is a one-line error."""
     pytest.importorskip("pypardiso")
@@ -264,7 +264,8 @@ def test_pardiso_solves_on_one_and_two_threads_agree(monkeypatch):
     B = rng.normal(size=(A.shape[0], 3))
     f = PardisoFactor(A)
     monkeypatch.delenv("FACESIM_SOLVE_THREADS", raising=False)
-    assert _solve_threads() == numba.get_num_threads()
+    assert _solve_threads() == _solve_threads(10 ** 8) == numba.get_num_threads()
+    assert _solve_threads(f.factor_nonzeros) == 1   # a small factor: one thread
     out = {}
     for n in ("1", "2"):
         monkeypatch.setenv("FACESIM_SOLVE_THREADS", n)
