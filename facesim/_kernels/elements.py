@@ -288,7 +288,8 @@ def fibre_element_hessian(x, tet, Bm, V0, d, sp, sa, project, K):
 def fibre_assemble(x, tets, Bm, V0, ent_ptr, ent_fibre, ent_muscle, ent_fraction, sigma, gain, a, project,
                    colour_ptr, chunk_ptr, chunk_elems, e2b, data):
     """Add the fibre Hessians into BSR ``data``: entries grouped by tet (``ent_ptr``, CSR over tets),
-    tets in the flesh's coloured chunks (:func:`elastic_assemble`)."""
+    tets in the flesh's coloured chunks (:func:`elastic_assemble`; ``chunk_elems`` the tets and
+    ``e2b`` their block maps, in chunk order)."""
     for col in range(colour_ptr.shape[0] - 1):
         first = colour_ptr[col]
         for c in prange(colour_ptr[col + 1] - first):
@@ -307,7 +308,7 @@ def fibre_assemble(x, tets, Bm, V0, ent_ptr, ent_fibre, ent_muscle, ent_fraction
                     for r in range(12):
                         for q in range(12):
                             Ksum[r, q] += K[r, q]
-                _add_block(data, e2b[e], Ksum)
+                _add_block(data, e2b[i], Ksum)
 
 
 # ---------------------------------------------------------------- step limiting

@@ -189,10 +189,10 @@ def _compute_threads() -> int:
 THREADED_SOLVE_ABOVE = 5_000_000
 
 
-def _solve_threads(factor_nonzeros: int | None = None) -> int:
+def _solve_threads(factor_nonzeros: int) -> int:
     """MKL threads for PARDISO's triangular solves with a factor of ``factor_nonzeros`` entries:
     ``FACESIM_SOLVE_THREADS`` if set (1 is the single-threaded solve of before), else
-    :func:`_compute_threads` above ``THREADED_SOLVE_ABOVE`` entries (None: any size) and 1 below.
+    :func:`_compute_threads` from ``THREADED_SOLVE_ABOVE`` entries and 1 below.
     Two threads: the paper-size face's tracked frames 20.5 against 27.2 s, its cold frame 82
     against 108 s, the coarse demo clip unchanged (benchmarks/RESULTS.md, session 31)."""
     value = os.environ.get("FACESIM_SOLVE_THREADS", "").strip()
@@ -201,7 +201,7 @@ def _solve_threads(factor_nonzeros: int | None = None) -> int:
             return max(1, int(value))
         except ValueError:
             raise FacesimError(f"FACESIM_SOLVE_THREADS={value!r}: expected a whole number of threads") from None
-    if factor_nonzeros is not None and factor_nonzeros < THREADED_SOLVE_ABOVE:
+    if factor_nonzeros < THREADED_SOLVE_ABOVE:
         return 1
     return _compute_threads()
 

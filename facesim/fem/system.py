@@ -40,6 +40,14 @@ CHUNKS = 64
 MIN_CHUNK = 32
 
 
+def _block_pairs(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 16 (row, column) pairs of each element's ``rows (k, 4)`` (-1: no row), a-major, as
+    ``(rr, cc, ok)`` of shape ``(k, 16)``; ``ok`` where both are rows."""
+    rr = np.repeat(rows, 4, axis=1)
+    cc = np.tile(rows, (1, 4))
+    return rr, cc, (rr >= 0) & (cc >= 0)
+
+
 def _bandwidth_order(rows: np.ndarray, n: int) -> np.ndarray:
     """Reverse Cuthill-McKee order of the ``n`` rows coupled by the elements' ``rows (k, 4)`` (-1:
     no row): ``order[i]`` is the old row that becomes row ``i``."""
@@ -47,23 +55,21 @@ def _bandwidth_order(rows: np.ndarray, n: int) -> np.ndarray:
 
     if n == 0:
         return np.zeros(0, np.int64)
-    a = np.repeat(rows, 4, axis=1).ravel()
-    b = np.tile(rows, (1, 4)).ravel()
-    ok = (a >= 0) & (b >= 0)
-    graph = sp.csr_matrix((np.ones(int(ok.sum()), np.int8), (a[ok], b[ok])), shape=(n, n))
+    rr, cc, ok = _block_pairs(rows)
+    graph = sp.csr_matrix((np.ones(int(ok.sum()), np.int8), (rr[ok], cc[ok])), shape=(n, n))
     return np.asarray(reverse_cuthill_mckee(graph, symmetric_mode=True), dtype=np.int64)
 
 
-def _coloured_chunks(tets, elems, row_of, n_nodes):
-    """``(colour_ptr, chunk_ptr, chunk_elems)`` of :class:`DofSystem`: ``elems`` sorted by their
-    least and greatest row, cut into up to ``CHUNKS`` chunks of equal size, the chunks coloured
-    greedily and grouped by colour. Where that needs too many colours (a mesh that a bandwidth
-    order does not narrow), chunks of one tet each, as the tets' own colouring."""
+def _coloured_chunks(tets, elems, rows, n_nodes):
+    """``(colour_ptr, chunk_ptr, order)`` of :class:`DofSystem`: ``elems`` (their rows ``rows (k,
+    4)``, -1: none) sorted by their least and greatest row, cut into up to ``CHUNKS`` chunks of
+    equal size, the chunks coloured greedily and grouped by colour; ``order`` the positions in
+    ``elems`` in that order. Where that needs too many colours (a mesh that a bandwidth order does
+    not narrow), chunks of one tet each, as the tets' own colouring."""
     if len(elems) == 0:
         return np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64)
-    r = row_of[tets[elems]]
-    r_low = np.where(r >= 0, r, np.iinfo(np.int64).max).min(axis=1)
-    order = np.lexsort((r.max(axis=1), r_low))
+    r_low = np.where(rows >= 0, rows, np.iinfo(np.int64).max).min(axis=1)
+    order = np.lexsort((rows.max(axis=1), r_low))
     elems = np.ascontiguousarray(elems[order], dtype=np.int64)
     n_chunks = int(min(CHUNKS, max(1, len(elems) // MIN_CHUNK)))
     for chunk_ptr in (np.linspace(0, len(elems), n_chunks + 1).astype(np.int64),
@@ -76,10 +82,10 @@ def _coloured_chunks(tets, elems, row_of, n_nodes):
     by_colour = np.argsort(colour, kind="stable")
     sizes = np.diff(chunk_ptr)[by_colour]
     # chunk order within a colour and tet order within a chunk kept
-    chunk_elems = elems[np.argsort(np.repeat(colour, np.diff(chunk_ptr)), kind="stable")]
+    order = order[np.argsort(np.repeat(colour, np.diff(chunk_ptr)), kind="stable")]
     new_ptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     colour_ptr = np.searchsorted(colour[by_colour], np.arange(int(colour.max()) + 2)).astype(np.int64)
-    return colour_ptr, new_ptr, np.ascontiguousarray(chunk_elems, dtype=np.int64)
+    return colour_ptr, new_ptr, order
 
 
 class DofSystem:
@@ -91,10 +97,9 @@ class DofSystem:
 
     Attributes: ``tets``; ``active (N,)`` node ids of the system rows, in reverse Cuthill-McKee
     order of the mesh graph (not sorted); ``row_of (n,)`` node -> block row or -1;
-    ``fixed_active (N, 3)``; ``indptr, indices`` (BSR pattern); ``e2b (m, 4, 4)`` block index per
-    element node pair or -1 (``chunk_e2b``: the same in chunk order); ``chunk_elems`` the elements
-    sorted by their first row and cut into
-    chunks ``chunk_elems[chunk_ptr[k]:chunk_ptr[k + 1]]``, grouped by colour (chunks
+    ``fixed_active (N, 3)``; ``indptr, indices`` (BSR pattern); ``chunk_elems`` the elements
+    sorted by their first row and cut into chunks ``chunk_elems[chunk_ptr[k]:chunk_ptr[k + 1]]``,
+    ``chunk_e2b (k, 4, 4)`` the block index of each one's node pairs or -1, grouped by colour (chunks
     ``colour_ptr[c]:colour_ptr[c + 1]``): no two chunks of a colour share a node, so each colour
     assembles in parallel, and the tets of a chunk, neighbours in the mesh, add into nearby rows.
 
@@ -125,20 +130,17 @@ class DofSystem:
         N = len(self.active)
         # pattern: all (row, col) block pairs of active nodes sharing an element
         r = self.row_of[tets[self.elems]]                      # (k, 4)
-        rr = np.repeat(r, 4, axis=1)                            # (k, 16): a-major
-        cc = np.tile(r, (1, 4))
-        ok = (rr >= 0) & (cc >= 0)
+        rr, cc, ok = _block_pairs(r)                            # (k, 16)
         key = rr.astype(np.int64) * max(N, 1) + cc
         uniq = unique_ints(key[ok])
         rows, cols = uniq // max(N, 1), uniq % max(N, 1)
         self.indptr = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
         self.indices = cols.astype(np.int32)
-        e2b = np.full(key.shape, -1, np.int64)
+        e2b = np.full(key.shape, -1, np.int32)
         e2b[ok] = np.searchsorted(uniq, key[ok])
-        self.e2b = np.full((len(tets), 4, 4), -1, np.int64)
-        self.e2b[self.elems] = e2b.reshape(-1, 4, 4)
-        self.colour_ptr, self.chunk_ptr, self.chunk_elems = _coloured_chunks(tets, self.elems, self.row_of, n_nodes)
-        self.chunk_e2b = np.ascontiguousarray(self.e2b[self.chunk_elems], dtype=np.int32)   # in chunk order
+        self.colour_ptr, self.chunk_ptr, order = _coloured_chunks(tets, self.elems, r, n_nodes)
+        self.chunk_elems = self.elems[order]
+        self.chunk_e2b = np.ascontiguousarray(e2b[order].reshape(-1, 4, 4))
         self.n_blocks = len(self.indices)
 
     @property

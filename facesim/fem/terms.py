@@ -99,8 +99,7 @@ class ElasticTerm(NodeTerm):
         chunked = self._by_system.get(system)
         if chunked is None:
             e = system.chunk_elems
-            r = self.rest
-            chunked = tuple(np.ascontiguousarray(v[e]) for v in (r.tets, r.Bm, r.V0, self.c10, self.c01, self.kappa))
+            chunked = tuple(np.ascontiguousarray(v[e]) for v in self._args()[:6])   # the per-tet arrays
             self._by_system[system] = chunked
         return chunked
 
@@ -191,7 +190,7 @@ class MuscleTerm(NodeTerm):
         r = self.rest
         K.fibre_assemble(_positions(x, len(r.X)), r.tets, r.Bm, r.V0, self.ent_ptr, self.fibre, self.muscle,
                          self.fraction, self.sigma, self.gain, self._a(a), bool(project), system.colour_ptr,
-                         system.chunk_ptr, system.chunk_elems, system.e2b, data)
+                         system.chunk_ptr, system.chunk_elems, system.chunk_e2b, data)
 
     def hessian(self, x, a=None, project: bool = True) -> sp.csr_matrix:
         return _own_hessian(self, x, a, project, unique_ints(self.tet))

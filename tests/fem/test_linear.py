@@ -264,12 +264,12 @@ def test_pardiso_solves_on_one_and_two_threads_agree(monkeypatch):
     B = rng.normal(size=(A.shape[0], 3))
     f = PardisoFactor(A)
     monkeypatch.delenv("FACESIM_SOLVE_THREADS", raising=False)
-    assert _solve_threads() == _solve_threads(10 ** 8) == numba.get_num_threads()
+    assert _solve_threads(10 ** 8) == numba.get_num_threads()
     assert _solve_threads(f.factor_nonzeros) == 1   # a small factor: one thread
     out = {}
     for n in ("1", "2"):
         monkeypatch.setenv("FACESIM_SOLVE_THREADS", n)
-        assert _solve_threads() == int(n)
+        assert _solve_threads(f.factor_nonzeros) == _solve_threads(10 ** 8) == int(n)
         out[n] = (f.precondition(B[:, 0]), f.precondition(B))
         for x, b in ((out[n][0], B[:, 0]), (out[n][1], B)):
             assert np.linalg.norm(A @ x - b) < 1e-5 * np.linalg.norm(b)
@@ -277,7 +277,7 @@ def test_pardiso_solves_on_one_and_two_threads_agree(monkeypatch):
     np.testing.assert_allclose(out["2"][1], out["1"][1], rtol=0, atol=1e-5 * np.abs(out["1"][1]).max())
     monkeypatch.setenv("FACESIM_SOLVE_THREADS", "two")
     with pytest.raises(FacesimError, match="FACESIM_SOLVE_THREADS='two': expected a whole number"):
-        _solve_threads()
+        _solve_threads(f.factor_nonzeros)
 
 
 def test_pardiso_factor_keeps_the_matrix_as_given_until_released():
