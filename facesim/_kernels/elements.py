@@ -18,6 +18,7 @@ from numba import njit, prange
 
 from facesim._kernels import JIT_FLAGS
 from facesim._kernels.fibre import fibre_stress
+from facesim._kernels.svd3 import SVD_ROWS, svd3
 from facesim._kernels.mooney import MODES_ROWS, NODE_HESSIAN_ROWS, PSD_ROWS, mr_modes, mr_node_hessian, mr_psd, mr_stress
 
 
@@ -78,6 +79,31 @@ def rest_shape(X, tets, Bm, V0):
         Bm[e, 2, 2] = (D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]) * inv
 
 
+@njit(parallel=True, **JIT_FLAGS)
+def min_signed_singular_value(x, tets, Bm, elems):
+    """The smallest signed singular value of ``F`` over the tets ``elems`` at ``x (n, 3)`` (the
+    signed SVD's: negative where a tet is inverted; inf for none). A numba loop: LAPACK's batched
+    SVD took 2.9 s over the paper-size face's 824K tets (benchmarks/RESULTS.md, session 32)."""
+    n = elems.shape[0]
+    nc = _chunks(n)
+    part = np.full(max(nc, 1), np.inf)
+    for c in prange(nc):
+        F = np.empty((3, 3))
+        U = np.empty((3, 3))
+        V = np.empty((3, 3))
+        s = np.empty(3)
+        W = np.empty((SVD_ROWS, 3))
+        low = np.inf
+        for i in range(c * n // nc, (c + 1) * n // nc):
+            e = elems[i]
+            deformation_gradient(x, tets[e], Bm[e], F)
+            svd3(F, U, s, V, W)
+            if s[2] < low:
+                low = s[2]
+        part[c] = low
+    return part.min()
+
+
 # ---------------------------------------------------------------- Mooney-Rivlin flesh
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -107,6 +133,39 @@ def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems,
                     for k in range(3):
                         ge[i, a, k] = V0[e] * (P[k, 0] * b[a, 0] + P[k, 1] * b[a, 1] + P[k, 2] * b[a, 2])
         part[c] = acc
+    return part.sum()
+
+
+@njit(parallel=True, **JIT_FLAGS)
+def elastic_gradient(x, tets, Bm, V0, c10, c01, kappa, vol, eps, colour_ptr, chunk_ptr, g):
+    """Add dE/dx of the tets into ``g (n, 3)`` and return their energy. The tets' arrays are in
+    chunk order, the chunks grouped by colour as in :func:`elastic_assemble`: chunks of a colour
+    share no node, so each adds straight into ``g`` in parallel (no per-tet gradients stored and
+    summed afterwards on one thread)."""
+    part = np.zeros(max(chunk_ptr.shape[0] - 1, 1))
+    for col in range(colour_ptr.shape[0] - 1):
+        first = colour_ptr[col]
+        for c in prange(colour_ptr[col + 1] - first):
+            F = np.empty((3, 3))
+            P = np.empty((3, 3))
+            b = np.empty((4, 3))
+            lam = np.empty(9)
+            Q = np.empty((9, 3, 3))
+            W = np.empty((MODES_ROWS, 3))
+            acc = 0.0
+            for i in range(chunk_ptr[first + c], chunk_ptr[first + c + 1]):
+                t = tets[i]
+                deformation_gradient(x, t, Bm[i], F)
+                psi, fast = mr_stress(F, c10[i], c01[i], kappa[i], vol, eps, P, W)
+                if not fast:   # a singular value may be clamped: the SVD form
+                    psi = mr_modes(F, c10[i], c01[i], kappa[i], vol, eps, P, lam, Q, W, False)
+                v = V0[i]
+                acc += v * psi
+                shape_gradients(Bm[i], b)
+                for a in range(4):
+                    for k in range(3):
+                        g[t[a], k] += v * (P[k, 0] * b[a, 0] + P[k, 1] * b[a, 1] + P[k, 2] * b[a, 2])
+            part[first + c] = acc
     return part.sum()
 
 

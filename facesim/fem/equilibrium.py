@@ -144,8 +144,8 @@ class FaceSimulator:
                                    volumetric=self.options.volumetric, clamp=self.options.clamp)
         self._path_elastic = None
         if self.options.clamp < PATH_CLAMP:
-            self._path_elastic = ElasticTerm(self.rest, self.elastic.c10, self.elastic.c01, self.elastic.kappa,
-                                             elems=self.elems, volumetric=self.options.volumetric, clamp=PATH_CLAMP)
+            self._path_elastic = self.elastic.with_clamp(PATH_CLAMP)
+        self.elastic._chunked(self.system)   # the system's chunk order: the gradient's too (no second copy)
         mus = model.muscles
         self.muscle = MuscleTerm(self.rest, mus.tet, mus.muscle, mus.fraction, mus.fibre, mus.sigma_max, gain=gain,
                                  elems=self.elems)
@@ -363,11 +363,10 @@ class FaceSimulator:
 
     def _min_singular_value(self, x) -> float:
         """Smallest singular value of F over the simulated tets at ``x (n, 3)`` (negative if inverted)."""
-        T = self.rest.tets[self.elems]
-        D = np.stack([x[T[:, k]] - x[T[:, 0]] for k in (1, 2, 3)], axis=2)
-        F = D @ self.rest.Bm[self.elems]
-        s = np.linalg.svd(F, compute_uv=False)[:, -1]
-        return float((s * np.sign(np.linalg.det(F))).min()) if len(s) else np.inf
+        from facesim._kernels.elements import min_signed_singular_value
+
+        return float(min_signed_singular_value(np.ascontiguousarray(x, dtype=np.float64), self.rest.tets,
+                                               self.rest.Bm, np.ascontiguousarray(self.elems, dtype=np.int64)))
 
     def _newton(self, prob: Problem, options: NewtonOptions, scale: float, clamp_scale=None, linear=None):
         """Newton on ``prob``, first at :data:`PATH_CLAMP` when the options' clamp is smaller

@@ -88,6 +88,17 @@ def _coloured_chunks(tets, elems, rows, n_nodes):
     return colour_ptr, new_ptr, order
 
 
+def element_chunks(tets, elems, n_nodes: int):
+    """``(colour_ptr, chunk_ptr, order)`` as :class:`DofSystem` makes them, over the nodes rather
+    than a system's rows: ``elems`` sorted by their nodes' reverse Cuthill-McKee rank, cut into
+    chunks and coloured so that no two chunks of a colour share a node; ``order`` the positions in
+    ``elems`` in that order (for a term's gradient, which has no system)."""
+    T = np.asarray(tets)[np.asarray(elems, dtype=np.int64)].astype(np.int64)
+    rank = np.empty(n_nodes, np.int64)
+    rank[_bandwidth_order(T, n_nodes)] = np.arange(n_nodes)
+    return _coloured_chunks(tets, np.asarray(elems, dtype=np.int64), rank[T], n_nodes)
+
+
 class DofSystem:
     """Unknowns and matrix pattern for the elements ``elems`` of a mesh with ``fixed`` components.
 

@@ -17,7 +17,7 @@ from facesim._kernels import elements as K
 from facesim.energy import NodeTerm
 from facesim.errors import FacesimError
 from facesim.fem.material import DEFAULT_CLAMP, VOLUMETRIC
-from facesim.fem.system import DofSystem, RestShape
+from facesim.fem.system import DofSystem, RestShape, element_chunks
 
 
 INVERSION_SAMPLES = 16
@@ -44,6 +44,15 @@ def _own_hessian(term, x, a, project: bool, elems) -> sp.csr_matrix:
     return sp.csr_matrix((H.data, (dof[H.row], dof[H.col])), shape=(3 * n, 3 * n))
 
 
+class _ChunkCopies:
+    """An :class:`ElasticTerm`'s tet arrays in chunk orders: ``by_system`` (DofSystem -> arrays in
+    its order, for assembly) and ``gradient`` (``(arrays, colour_ptr, chunk_ptr)``)."""
+
+    def __init__(self):
+        self.by_system = weakref.WeakKeyDictionary()
+        self.gradient = None
+
+
 class ElasticTerm(NodeTerm):
     """Mooney-Rivlin flesh on the tets ``elems`` with per-tet parameters (MPa).
 
@@ -61,7 +70,7 @@ class ElasticTerm(NodeTerm):
         self.vol = VOLUMETRIC[volumetric]
         self.clamp = float(clamp)
         self.elems = np.ascontiguousarray(np.arange(m) if elems is None else elems, dtype=np.int64)
-        self._by_system = weakref.WeakKeyDictionary()   # DofSystem -> its chunk-ordered tet arrays
+        self._copies = _ChunkCopies()   # the tet arrays in chunk orders (shared by with_clamp)
 
     def _args(self):
         r = self.rest
@@ -73,34 +82,61 @@ class ElasticTerm(NodeTerm):
 
     def energy_and_gradient(self, x, a=None) -> tuple[float, np.ndarray]:
         x = _positions(x, len(self.rest.X))
-        ge = np.empty((len(self.elems), 4, 3))
-        e = K.elastic_element_gradients(x, *self._args(), self.elems, ge, True)
         g = np.zeros_like(x)
-        K.scatter_gradient(self.rest.tets, self.elems, ge, g)
+        arrays, colour_ptr, chunk_ptr = self._gradient_chunks()
+        e = K.elastic_gradient(x, *arrays, self.vol, self.clamp, colour_ptr, chunk_ptr, g)
         return e, g
+
+    def _gradient_chunks(self) -> tuple:
+        """``(arrays, colour_ptr, chunk_ptr)``: the tets' arrays of :meth:`_args` in a chunk order,
+        made once: the gradient adds into the nodes chunk by chunk in parallel, neighbouring tets
+        one after the other (the paper-size face's gradient 0.15 against 0.22 s on two threads,
+        benchmarks/RESULTS.md, session 32). The order of a system this term assembles into over
+        the same tets when there is one (no second copy), else its own
+        (:func:`~facesim.fem.system.element_chunks`)."""
+        copies = self._copies
+        if copies.gradient is None:
+            for system, arrays in list(copies.by_system.items()):
+                if np.array_equal(system.elems, self.elems):
+                    copies.gradient = (arrays, system.colour_ptr, system.chunk_ptr)
+                    break
+            else:
+                colour_ptr, chunk_ptr, order = element_chunks(self.rest.tets, self.elems, len(self.rest.X))
+                copies.gradient = (self._arrays_in(self.elems[order]), colour_ptr, chunk_ptr)
+        return copies.gradient
+
+    def _arrays_in(self, elems) -> tuple:
+        """The per-tet arrays of :meth:`_args` (tets, Bm, V0, c10, c01, kappa) in the order ``elems``."""
+        return tuple(np.ascontiguousarray(v[elems]) for v in self._args()[:6])
 
     def gradient(self, x, a=None) -> np.ndarray:
         return self.energy_and_gradient(x, a)[1]
 
-    def __getstate__(self):   # pickled (to a worker) without the per-system copies
+    def with_clamp(self, clamp: float) -> "ElasticTerm":
+        """This term with another clamp, sharing its arrays and their chunk-ordered copies (which do
+        not depend on the clamp)."""
+        other = object.__new__(type(self))
+        other.__dict__.update(self.__dict__)
+        other.clamp = float(clamp)
+        return other
+
+    def __getstate__(self):   # pickled (to a worker) without the chunk-ordered copies
         state = dict(self.__dict__)
-        state["_by_system"] = None
+        state["_copies"] = None
         return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-        self._by_system = weakref.WeakKeyDictionary()
+        self._copies = _ChunkCopies()
 
     def _chunked(self, system: DofSystem) -> tuple:
         """The tets' arrays of :meth:`_args` in ``system``'s chunk order (``system.chunk_elems``), made
         once per system: assembly then reads them in order rather than scattered over the mesh
         (the medium face's true tangent 0.89 against 1.11 us a tet on two threads,
         benchmarks/RESULTS.md, session 31)."""
-        chunked = self._by_system.get(system)
+        chunked = self._copies.by_system.get(system)
         if chunked is None:
-            e = system.chunk_elems
-            chunked = tuple(np.ascontiguousarray(v[e]) for v in self._args()[:6])   # the per-tet arrays
-            self._by_system[system] = chunked
+            chunked = self._copies.by_system[system] = self._arrays_in(system.chunk_elems)
         return chunked
 
     def add_hessian(self, x, a, system: DofSystem, data: np.ndarray, project: bool = True) -> None:

@@ -49,6 +49,11 @@ COARSE_SNAP_MM = 2.0
 COARSE_OUTSIDE_FRACTION = 0.01
 #: the jaw joints (condyles, incisor) of the two models may differ by this much, mm
 JAW_TOL_MM = 1.0
+#: relative force residual the refinement's fine equilibrium is solved to (the simulator's Newton
+#: tolerance if that is looser): the fit's first step starts there and its trial equilibrium is
+#: solved to the full tolerance; a fit that keeps no step is finished to it (:meth:`CoarseStart.fit_frame`).
+#: The paper-size face: one Newton step of four fewer, 4-5 s, the same fit (benchmarks/RESULTS.md, session 32)
+START_RTOL = 1e-4
 
 
 def _joint_points(model: FaceModel) -> dict[str, np.ndarray]:
@@ -220,8 +225,10 @@ class CoarseStart:
         rep.timing["jacobian"] += time.perf_counter() - t
         t = time.perf_counter()
         lin = FactorPCG(owner=owner) if owner.tangent is not None else None
+        newton = sim.options.newton
         try:
-            eq = sim.equilibrium(ctrl, x0=x0, extra_terms=extra_terms, frame=frame, linear=lin)
+            eq = sim.equilibrium(ctrl, x0=x0, extra_terms=extra_terms, frame=frame, linear=lin,
+                                 newton_options=dataclasses.replace(newton, rtol=max(newton.rtol, START_RTOL)))
         except SolverError as exc:
             eq, rep.error = None, " ".join(str(exc).split())
         rep.timing["equilibria"] += time.perf_counter() - t
@@ -295,7 +302,7 @@ class CoarseStart:
             start, x, J, head_frame, rep = self.start(cfit, controls, head_frame, space, options, frame)
             coarse_seconds = time.perf_counter() - t0
             fit = fit_frame(self.fine_sim, targets, start, x, space, options, weights=weights, jacobian=J,
-                            frame=frame, head_frame=head_frame, jaw_prior=jaw_prior)
+                            frame=frame, head_frame=head_frame, jaw_prior=jaw_prior, finish_start=x is not None)
         merge(fit.report, [cfit.report] + ([rep] if rep is not None else []), coarse_seconds)
         return fit
 

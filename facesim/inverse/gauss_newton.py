@@ -52,6 +52,7 @@ line search ~10 % of the time):
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -303,7 +304,7 @@ def _reusable(J: EquilibriumJacobian | None, space: ControlSpace, c, x) -> bool:
 def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | None = None,
               options: FitOptions | None = None, weights=None, extra_terms=(),
               jacobian: EquilibriumJacobian | None = None, screen=None, frame: float = 0.0,
-              head_frame=None, jaw_prior=None) -> Fit:
+              head_frame=None, jaw_prior=None, finish_start: bool = False) -> Fit:
     """Fit one frame: the controls (in ``space``, default all activations and the jaw model's
     parameters) whose equilibrium puts the model's markers on ``targets (r, 3)`` mm (NaN rows
     are missing markers), starting from ``controls`` and its equilibrium ``x0`` (solved if None).
@@ -327,6 +328,10 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     ``jaw_prior``: a :class:`~facesim.inverse.jaw_prior.PriorRows`, predicted mandible points the
     jaw parameters are drawn to (residual rows of the objective beside the markers'; needs jaw
     parameters in ``space``; :mod:`facesim.inverse.jaw_prior`).
+    ``finish_start``: ``x0`` is an equilibrium solved to a looser tolerance than the simulator's
+    (a coarse start's refinement, :data:`facesim.inverse.coarse.START_RTOL`): a fit that keeps no
+    step then solves it to the full tolerance before returning it (chord iterations on the
+    Jacobian's factor), so the fit's ``x`` is always a converged equilibrium.
 
     Returns a :class:`Fit` with the final controls, positions, marker positions, the report (with
     ``stop_reason``, one of :data:`STOP_REASONS`: ``"converged"`` by the stopping rule,
@@ -337,7 +342,7 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     options = options or FitOptions()
     with single_blas_thread(), time_budget(options.max_seconds):   # vector-sized BLAS work: threads contend
         return _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
-                          jacobian, screen, frame, head_frame, jaw_prior)
+                          jacobian, screen, frame, head_frame, jaw_prior, finish_start)
 
 
 class _OutOfTime(Exception):
@@ -345,7 +350,7 @@ class _OutOfTime(Exception):
 
 
 def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms, jacobian, screen, frame,
-               head_frame, jaw_prior=None) -> Fit:
+               head_frame, jaw_prior=None, finish_start=False) -> Fit:
     t0 = time.perf_counter()
     model = sim.model
     targets = np.asarray(targets, dtype=np.float64)
@@ -496,6 +501,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
         rep.seconds = time.perf_counter() - t0
         return Fit(controls, x, P, rep, None, equilibrium=False,
                    head_frame=None if head is None else np.asarray(head_frame, dtype=np.float64))
+    x_start = x if finish_start else None
     c = space.vector(controls)
     J = jacobian if _reusable(jacobian, space, c, x) else None
     if head is not None:   # the frame's coefficients follow the control space's unknowns
@@ -610,6 +616,20 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             dc, _, F_next, predicted, _ = linear_step(J, c, x)
             if small(dc, F_next, predicted):
                 stop = "converged"
+    if x is x_start and stop != TIME_LIMIT:
+        # no step kept: the start, solved to a looser tolerance, is finished here
+        t = time.perf_counter()
+        try:
+            done = solve(ctrl(c), x, J)
+        except _OutOfTime:
+            done, stop = None, TIME_LIMIT
+        clock["equilibria"] += time.perf_counter() - t
+        if done is not None:
+            x = done
+            Ph = model.marker_positions(x)
+            P = in_targets(Ph, c)
+            if J is not None:
+                J = dataclasses.replace(J, x=x)   # first-order accurate anyway (a nearby tangent's)
     rep.stop_reason = stop
     final = ctrl(c)
     rk = (P[keep] - targets[keep])

@@ -205,14 +205,15 @@ def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacob
     fits: list[Fit] = []
     targets = np.asarray(targets, dtype=np.float64)
 
-    def fit_from(target, c, x, J, weights=None, screen=None, head=None):
+    def fit_from(target, c, x, J, weights=None, screen=None, head=None, finish=False):
         fit = fit_frame(sim, target, c, x, space, options.fit, weights=weights, jacobian=J, screen=screen,
-                        frame=frame, head_frame=fits[-1].head_frame if fits else head, jaw_prior=prior)
+                        frame=frame, head_frame=fits[-1].head_frame if fits else head, jaw_prior=prior,
+                        finish_start=finish)
         fits.append(fit)
         return fit
 
-    def solve(target, c, x, J, screen=None):
-        fit = fit_from(target, c, x, J, screen=screen, head=head_frame)
+    def solve(target, c, x, J, screen=None, finish=False):
+        fit = fit_from(target, c, x, J, screen=screen, head=head_frame, finish=finish)
         w = np.ones(len(target))
         for _ in range(options.irls_steps if options.loss != "l2" else 0):
             w_new = loss_weights(np.linalg.norm(fit.markers - target, axis=1), options.loss, options.scale)
@@ -226,14 +227,15 @@ def _fit_markers(sim, targets, controls, x0, space, options: TrackOptions, jacob
 
     # the frame's wall-clock budget covers all its fits (an inner fit's budget cannot extend it)
     with time_budget(options.fit.max_seconds):
-        if coarse is not None and x0 is None:
+        refined = coarse is not None and x0 is None
+        if refined:   # x0, if any, is the refinement's: solved to START_RTOL, finished by the fit
             controls, x0, jacobian, head_frame = _coarse_first(coarse, targets, controls, space, options, frame,
                                                                head_frame, prior, fits)
         # a tracked frame (one with the previous frame's Jacobian) screens for outliers on the first
         # step's linear prediction, which lands close to the fit: the outliers then cost no refit
         screen = functools.partial(_outliers, target=targets, options=options) \
             if options.robust and jacobian is not None else None
-        fit = solve(targets, controls, x0, jacobian, screen)
+        fit = solve(targets, controls, x0, jacobian, screen, finish=refined and x0 is not None)
         if fit.report.stop_reason == "equilibrium_failed" or not fit.equilibrium:
             return fit, [], fits
         outliers = _outliers(fit.markers, targets, options)

@@ -11,7 +11,7 @@ from facesim.controls import Controls
 from facesim.errors import FacesimError
 from facesim.fem.equilibrium import EquilibriumOptions, FaceSimulator
 from facesim.fem.newton import NewtonOptions
-from facesim.inverse.coarse import CoarseStart
+from facesim.inverse.coarse import START_RTOL, CoarseStart
 from facesim.inverse.gauss_newton import FitOptions, fit_frame
 from facesim.inverse.jacobian import ControlSpace
 from facesim.inverse.tracking import TrackOptions, track
@@ -122,10 +122,24 @@ def test_a_cold_frame_coarse_to_fine_recovers_the_activations(fine_sim, box_mode
     coarse = fit_frame(start.sim, targets, start.down(neutral), None, start.space(space), options)
     ctrl, x, J, rep = start.refine(coarse.controls, coarse.x, space, options)
     assert x is not None and J is not None and J.age == 1 and rep.equilibria == 1
+    # the fine equilibrium to START_RTOL, a Newton step or two from the full tolerance
+    newton = fine_sim.options.newton
+    g = fine_sim.equilibrium(ctrl, x0=x, newton_options=dataclasses.replace(newton, rtol=START_RTOL))
+    assert g.converged and g.iterations == 0
     g = fine_sim.equilibrium(ctrl, x0=x)
-    assert g.converged and g.iterations == 0   # already the fine equilibrium
+    assert g.converged and 1 <= g.iterations <= 3
     assert J.tangent is not None   # the factor the fit's trial equilibria start with
     assert J.tangent_at is not None   # where a resumed run factorises it again
+    # a fit from there that keeps no step (the markers already on their targets) finishes the
+    # start to the full tolerance, and its Jacobian moves there with it
+    on = fine_sim.model.marker_positions(x)
+    done = fit_frame(fine_sim, on, ctrl, x, space, options, jacobian=J, finish_start=True)
+    assert done.report.gn_steps == 0 and done.report.converged and done.x is not x
+    assert fine_sim.equilibrium(ctrl, x0=done.x).iterations == 0
+    assert done.jacobian is not None and done.jacobian.x is done.x
+    np.testing.assert_allclose(done.markers, fine_sim.model.marker_positions(done.x))
+    kept = fit_frame(fine_sim, on, ctrl, x, space, options, jacobian=J)
+    assert kept.x is x   # without finish_start the start is returned as given
 
 
 def test_a_track_with_a_coarse_model_matches_one_without(fine_sim, fine_box, box_model, tmp_path, monkeypatch):
