@@ -151,7 +151,7 @@ class Problem:
             H = t.sparse_hessian(x, self.a, self.system, project)
             if H is not None and H.nnz:
                 extra.append(H)
-        d = data[:, [0, 1, 2], [0, 1, 2]]
+        d = np.diagonal(data, axis1=1, axis2=2)   # a view (fancy indexing copied: 80 ms at paper size)
         diag = float(np.abs(d).mean()) if d.size else 1.0
         A = self.system.matrix(data, diag=diag if diag > 0 else 1.0)
         if extra:

@@ -254,15 +254,16 @@ def schedule_penalty(r, J, c, bounds: _Bounds, options: FitOptions, w=None):
     piece = None
     v, g, H = bounds.value_grad_hess(c)
     while True:
+        grad = A @ dc + b + mu * g
         for inner in range(50):   # Newton on the piecewise-quadratic model (exact once the active set settles)
-            grad = A @ dc + b + mu * g
             step = np.linalg.solve(A + mu * H, -grad)
             dc = dc + step
             v, g, H = bounds.value_grad_hess(c + dc)
             # the model's gradient at the new point: zero (to round-off) when the step stayed on
             # one quadratic piece of the penalty, so the next Newton step would be nil
-            left = A @ dc + b + mu * g
-            if np.abs(left).max() <= 1e-12 * max(np.abs(b).max(), np.abs(A @ dc).max(), 1e-300) or \
+            Adc = A @ dc
+            grad = Adc + b + mu * g   # also the next iteration's gradient (same weight)
+            if np.abs(grad).max() <= 1e-12 * max(np.abs(b).max(), np.abs(Adc).max(), 1e-300) or \
                     np.abs(step).max() <= 1e-12 * (1.0 + np.abs(dc).max()):
                 break
         model = r + J @ dc

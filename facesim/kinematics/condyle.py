@@ -56,8 +56,11 @@ def _range_penalty(values, lower, upper, weights, J):
     """Σ_i weights_i * (distance of values_i outside [lower_i, upper_i])², piecewise quadratic and
     zero inside, for ``values = J x + const``: returns (value, gradient (n,), Hessian (n, n)) with
     respect to x. ``J (k, n)``; the Hessian is 2 Jᵀ diag(weights * outside) J, PSD."""
-    excess = np.maximum(values - upper, 0.0) + np.minimum(values - lower, 0.0)
     outside = (values > upper) | (values < lower)
+    if not outside.any():   # inside the box (most calls of a penalty schedule): all zero
+        n = J.shape[1]
+        return 0.0, np.zeros(n), np.zeros((n, n))
+    excess = np.maximum(values - upper, 0.0) + np.minimum(values - lower, 0.0)
     value = float(np.sum(weights * excess**2))
     grad = 2.0 * J.T @ (weights * excess)
     hess = 2.0 * (J.T * (weights * outside)) @ J
