@@ -108,22 +108,23 @@ def min_signed_singular_value(x, tets, Bm, elems):
 
 @njit(**JIT_FLAGS)
 def stress_scratch():
-    """The scratch arrays :func:`tet_stress` works in, ``(F, P, b, lam, Q, W)``, made once per chunk
-    of tets (``b (4, 3)`` is the caller's, for shape gradients)."""
+    """The scratch arrays ``(F, P, b, lam, Q, W)`` of :func:`tet_stress` (``b (4, 3)`` for the
+    caller's shape gradients), made once per chunk of tets."""
     return (np.empty((3, 3)), np.empty((3, 3)), np.empty((4, 3)), np.empty(9), np.empty((9, 3, 3)),
             np.empty((MODES_ROWS, 3)))
 
 
-@njit(**JIT_FLAGS)
-def tet_stress(x, tet, Bm, c10, c01, kappa, vol, eps, scratch):
-    """``(psi, P)``: energy density and first Piola stress of one tet at ``x``, from the invariants
-    where no singular value can be clamped, else from the SVD form; ``P`` is ``scratch``'s."""
-    F, P, _, lam, Q, W = scratch
+@njit(inline="always", **JIT_FLAGS)
+def tet_stress(x, tet, Bm, c10, c01, kappa, vol, eps, F, P, lam, Q, W):
+    """Energy density of one tet at ``x``, its first Piola stress into ``P``: from the invariants
+    where no singular value can be clamped, else from the SVD form (``F, lam, Q, W`` scratch).
+    Inlined into the gradient loops: called, it made the paper-size gradient 25-30 % slower
+    (benchmarks/RESULTS.md, session 32)."""
     deformation_gradient(x, tet, Bm, F)
     psi, fast = mr_stress(F, c10, c01, kappa, vol, eps, P, W)
     if not fast:   # a singular value may be clamped: the SVD form
         psi = mr_modes(F, c10, c01, kappa, vol, eps, P, lam, Q, W, False)
-    return psi, P
+    return psi
 
 
 @njit(parallel=True, **JIT_FLAGS)
@@ -133,12 +134,11 @@ def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems,
     nc = _chunks(n)
     part = np.zeros(max(nc, 1))
     for c in prange(nc):
-        scratch = stress_scratch()
-        b = scratch[2]
+        F, P, b, lam, Q, W = stress_scratch()
         acc = 0.0
         for i in range(c * n // nc, (c + 1) * n // nc):
             e = elems[i]
-            psi, P = tet_stress(x, tets[e], Bm[e], c10[e], c01[e], kappa[e], vol, eps, scratch)
+            psi = tet_stress(x, tets[e], Bm[e], c10[e], c01[e], kappa[e], vol, eps, F, P, lam, Q, W)
             acc += V0[e] * psi
             if want_gradient:
                 shape_gradients(Bm[e], b)
@@ -159,12 +159,11 @@ def elastic_gradient(x, tets, Bm, V0, c10, c01, kappa, vol, eps, colour_ptr, chu
     for col in range(colour_ptr.shape[0] - 1):
         first = colour_ptr[col]
         for c in prange(colour_ptr[col + 1] - first):
-            scratch = stress_scratch()
-            b = scratch[2]
+            F, P, b, lam, Q, W = stress_scratch()
             acc = 0.0
             for i in range(chunk_ptr[first + c], chunk_ptr[first + c + 1]):
                 t = tets[i]
-                psi, P = tet_stress(x, t, Bm[i], c10[i], c01[i], kappa[i], vol, eps, scratch)
+                psi = tet_stress(x, t, Bm[i], c10[i], c01[i], kappa[i], vol, eps, F, P, lam, Q, W)
                 v = V0[i]
                 acc += v * psi
                 shape_gradients(Bm[i], b)
