@@ -332,7 +332,8 @@ def fit_frame(sim, targets, controls: Controls, x0=None, space: ControlSpace | N
     ``finish_start``: ``x0`` is an equilibrium solved to a looser tolerance than the simulator's
     (a coarse start's refinement, :data:`facesim.inverse.coarse.START_RTOL`): a fit that keeps no
     step then solves it to the full tolerance before returning it (chord iterations on the
-    Jacobian's factor), so the fit's ``x`` is always a converged equilibrium.
+    Jacobian's factor), so the fit's ``x`` is a converged equilibrium (``report.error`` says so
+    where that solve fails).
 
     Returns a :class:`Fit` with the final controls, positions, marker positions, the report (with
     ``stop_reason``, one of :data:`STOP_REASONS`: ``"converged"`` by the stopping rule,
@@ -631,6 +632,8 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             P = in_targets(Ph, c)
             if J is not None:
                 J = dataclasses.replace(J, x=x)   # first-order accurate anyway (a nearby tangent's)
+        elif stop != TIME_LIMIT:
+            rep.error = rep.error or "the start's equilibrium, solved to a looser tolerance, could not be finished"
     rep.stop_reason = stop
     final = ctrl(c)
     rk = (P[keep] - targets[keep])
