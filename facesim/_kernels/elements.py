@@ -5,10 +5,10 @@ gradients ``b[a] (3,)`` (``b0 = -(b1 + b2 + b3)``), rest volume ``V0``. Then
 ``dE/dx_a = V0 P b_a`` and, for a rank-one tangent mode ``q`` (3, 3) with eigenvalue ``lam``,
 the element Hessian gains ``V0 lam (G^T q)(G^T q)^T`` with ``(G^T q)_(a,k) = (q b_a)_k``.
 
-Gradients: computed per element in parallel, summed serially (a few flops per entry).
-Hessians: elements of one colour share no node, so each colour is a parallel loop writing
-straight into the BSR blocks through the precomputed scatter map ``e2b (m, 4, 4)``
-(-1 where a block is not part of the system).
+Flesh gradients and Hessians run over coloured chunks of tets (chunks of one colour share no
+node): each colour is a parallel loop adding straight into the nodes, or into the BSR blocks
+through the precomputed scatter map ``e2b`` (-1 where a block is not part of the system). The
+fibre gradient is computed per entry in parallel and summed serially (a few flops per entry).
 """
 
 import math
@@ -128,23 +128,17 @@ def tet_stress(x, tet, Bm, c10, c01, kappa, vol, eps, F, P, lam, Q, W):
 
 
 @njit(parallel=True, **JIT_FLAGS)
-def elastic_element_gradients(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems, ge, want_gradient):
-    """``ge (len(elems), 4, 3)``: dE_e/dx of each listed tet (if ``want_gradient``); returns the energy."""
+def elastic_energy(x, tets, Bm, V0, c10, c01, kappa, vol, eps, elems):
+    """The energy of the listed tets at ``x`` (their gradient: :func:`elastic_gradient`)."""
     n = elems.shape[0]
     nc = _chunks(n)
     part = np.zeros(max(nc, 1))
     for c in prange(nc):
-        F, P, b, lam, Q, W = stress_scratch()
+        F, P, _, lam, Q, W = stress_scratch()
         acc = 0.0
         for i in range(c * n // nc, (c + 1) * n // nc):
             e = elems[i]
-            psi = tet_stress(x, tets[e], Bm[e], c10[e], c01[e], kappa[e], vol, eps, F, P, lam, Q, W)
-            acc += V0[e] * psi
-            if want_gradient:
-                shape_gradients(Bm[e], b)
-                for a in range(4):
-                    for k in range(3):
-                        ge[i, a, k] = V0[e] * (P[k, 0] * b[a, 0] + P[k, 1] * b[a, 1] + P[k, 2] * b[a, 2])
+            acc += V0[e] * tet_stress(x, tets[e], Bm[e], c10[e], c01[e], kappa[e], vol, eps, F, P, lam, Q, W)
         part[c] = acc
     return part.sum()
 

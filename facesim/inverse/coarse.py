@@ -57,6 +57,11 @@ JAW_TOL_MM = 1.0
 START_RTOL = 1e-4
 
 
+def _at_start_rtol(newton):
+    """The Newton options ``newton`` with their tolerance loosened to :data:`START_RTOL`."""
+    return dataclasses.replace(newton, rtol=max(newton.rtol, START_RTOL))
+
+
 def _joint_points(model: FaceModel) -> dict[str, np.ndarray]:
     j = model.jaw
     return {"condyle_right": np.asarray(j.condyle_right, float), "condyle_left": np.asarray(j.condyle_left, float),
@@ -137,8 +142,7 @@ class CoarseStart:
         gain[order] = sim.muscle.gain
         # its equilibria to START_RTOL: its fit only seeds the full model's (the medium face's cold
         # fit 5.7-6.8 s against 7.6-8.3 s, the controls within 1.2e-4, benchmarks/RESULTS.md session 32)
-        newton = sim.options.newton
-        options = dataclasses.replace(sim.options, newton=dataclasses.replace(newton, rtol=max(newton.rtol, START_RTOL)))
+        options = dataclasses.replace(sim.options, newton=_at_start_rtol(sim.options.newton))
         self.sim = FaceSimulator(model, options=options, jaw_model=sim.jaw_model, gain=gain)
         self.order = order
 
@@ -230,10 +234,9 @@ class CoarseStart:
         rep.timing["jacobian"] += time.perf_counter() - t
         t = time.perf_counter()
         lin = FactorPCG(owner=owner) if owner.tangent is not None else None
-        newton = sim.options.newton
         try:
             eq = sim.equilibrium(ctrl, x0=x0, extra_terms=extra_terms, frame=frame, linear=lin,
-                                 newton_options=dataclasses.replace(newton, rtol=max(newton.rtol, START_RTOL)))
+                                 newton_options=_at_start_rtol(sim.options.newton))
         except SolverError as exc:
             eq, rep.error = None, " ".join(str(exc).split())
         rep.timing["equilibria"] += time.perf_counter() - t
