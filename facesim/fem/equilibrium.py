@@ -131,6 +131,7 @@ class FaceSimulator:
         self.jaw_model: JawModel = RigidJaw() if jaw_model is None else make_jaw_model(model, jaw_model)
         self.rest = RestShape(model.X, model.tets)
         self.elems = np.flatnonzero(model.simulated)
+        self._elems64 = np.ascontiguousarray(self.elems, dtype=np.int64)   # for the per-tet kernels
         n = model.n_nodes
         fixed = np.zeros((n, 3), bool)
         fixed[model.cranium_nodes] = True
@@ -143,6 +144,7 @@ class FaceSimulator:
                                    np.array([t.kappa for t in tis])[idx], elems=self.elems,
                                    volumetric=self.options.volumetric, clamp=self.options.clamp)
         self._path_elastic = None
+        self._cold = None   # the flesh of the tets a cold start deforms, by clamp (force_scale)
         if self.options.clamp < PATH_CLAMP:
             self._path_elastic = self.elastic.with_clamp(PATH_CLAMP)
         self.elastic._chunked(self.system)   # the system's chunk order: the gradient's too (no second copy)
@@ -181,7 +183,9 @@ class FaceSimulator:
             Lff = Lff + sp.diags(np.where(np.asarray(Lff.diagonal()) == 0, 1.0, 0.0))   # isolated nodes
             # symmetric positive definite: PARDISO when installed, else SuperLU in symmetric mode
             # (scipy's default column ordering took 86 s on the paper-size face, this 1-2 s)
-            lu = PardisoFactor(Lff) if pardiso_available() else factorize(Lff)
+            # (a double factor: a 3-column solve without refinement, 2.0 ms against 5.0 ms refined
+            # from a single one on the coarse face, every predicted start of a trial equilibrium)
+            lu = PardisoFactor(Lff, single=False) if pardiso_available() else factorize(Lff)
             self._laplace = (free, fixed, lu, L[free][:, fixed].tocsr())
             self._edges = (np.ascontiguousarray(e, dtype=np.int64), w)
         return self._laplace
@@ -366,7 +370,7 @@ class FaceSimulator:
         from facesim._kernels.elements import min_signed_singular_value
 
         return float(min_signed_singular_value(np.ascontiguousarray(x, dtype=np.float64), self.rest.tets,
-                                               self.rest.Bm, np.ascontiguousarray(self.elems, dtype=np.int64)))
+                                               self.rest.Bm, self._elems64))
 
     def _newton(self, prob: Problem, options: NewtonOptions, scale: float, clamp_scale=None, linear=None):
         """Newton on ``prob``, first at :data:`PATH_CLAMP` when the options' clamp is smaller
@@ -397,12 +401,35 @@ class FaceSimulator:
         # far, and at the smaller clamp their forces (not the load) would set every tolerance
         # (path=False: at the options' clamp, the scale of the solve that follows a rejected path)
         at = self._at_path_clamp if path else (lambda p: p)
-        prob = at(self.problem(controls, None, extra_terms))   # its start is the cold start
+        controls = self._check(controls)
+        cold = self.attached_positions(controls)
+        Hc = self.bone_transforms(controls)[0]
+        if np.abs(Hc[:3, :3].T @ Hc[:3, :3] - np.eye(3)).max() <= 1e-12:
+            # the cold start moves only the jaw's tets: the rest of the flesh is the rest shape moved
+            # rigidly, free of stress, so its gradient is left out (7-10 ms of the coarse face's
+            # 24 ms force scale, a fixed cost of every trial equilibrium; benchmarks/RESULTS.md session 33)
+            flesh = self._cold_flesh(path)
+            terms = tuple(flesh if t is self.elastic else t for t in self.terms) + tuple(extra_terms)
+            prob = Problem(terms, self.system, cold, controls.a)
+        else:   # an affine head frame that is not a rotation strains every tet
+            prob = at(Problem(self.terms + tuple(extra_terms), self.system, cold, controls.a))
         scale = float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]))
         if start is not None:
             prob = at(self.problem(controls, start, extra_terms))
             scale = max(scale, float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1])))
         return scale
+
+    def _cold_flesh(self, path: bool):
+        """The flesh term restricted to the tets with a jaw node, at :data:`PATH_CLAMP` (``path``,
+        where that is larger than the options' clamp) or the options' clamp: all the flesh that a
+        cold start (:meth:`attached_positions` without ``x``) deforms."""
+        key = bool(path and self._path_elastic is not None)
+        if self._cold is None:
+            self._cold = {}
+        if key not in self._cold:
+            e = self._path_elastic if key else self.elastic
+            self._cold[key] = e.restricted(e.touching(self.model.jaw_nodes))
+        return self._cold[key]
 
     def _at_path_clamp(self, prob: Problem) -> Problem:
         """``prob`` with the flesh term at :data:`PATH_CLAMP` (itself when the clamp is not smaller)."""
@@ -483,12 +510,13 @@ class FaceSimulator:
     def element_quality(self, x) -> tuple[int, float]:
         """``(inverted, min_J)`` over the simulated tets at ``x (n, 3)``: how many have det F <= 0,
         and the smallest det F (volume ratio; NaN for non-finite positions)."""
-        from facesim.model import signed_volumes
+        from facesim._kernels.elements import volume_ratio_range
 
         if not np.isfinite(x).all():
             return -1, float("nan")
-        J = signed_volumes(np.asarray(x, dtype=np.float64), self.rest.tets[self.elems]) / self.rest.V0[self.elems]
-        return int((J <= 0).sum()), float(J.min(initial=np.inf))
+        inverted, low = volume_ratio_range(np.ascontiguousarray(x, dtype=np.float64), self.rest.tets, self.rest.Bm,
+                                           self._elems64)
+        return int(inverted), float(low)
 
     def internal_force(self, x, a) -> np.ndarray:
         """Total internal force ``-dE/dx (n, 3)`` (N) of flesh and muscles."""

@@ -274,6 +274,11 @@ def _mkl_pardiso():
 REFINE_RTOL = 1e-10   # relative residual a PARDISO solve refines to (the face: one step from ~1e-6)
 REFINE_STEPS = 6
 SKETCH_ABOVE = 1e-8   # PardisoFactor.solve: tolerances above this check a many-column solve by a sketch first
+#: columns from which PARDISO solves a block of right-hand sides in one call; fewer are solved one
+#: by one: its block path cost 2-3 columns' time per column below ~8 (the coarse face's tangent:
+#: 1 column 2.0 ms, 3 in one call 9.2 ms, 35 in one call 47 ms; its scalar Laplacian: 1 column
+#: 0.6 ms, 3 in one call 4.5 ms; benchmarks/RESULTS.md, session 33)
+BLOCK_SOLVE_FROM = 8
 
 
 def _pardiso_error(error: int, spd: bool = False) -> str:
@@ -425,7 +430,10 @@ class PardisoFactor:
         # the triangular solves of a large factor on numba's threads too: on two cores 1.5x faster
         # from the medium face's factor up (paper size 0.17-0.20 s against 0.29-0.32 s)
         with _mkl_threads(_solve_threads(self._nonzeros)):
-            x = self._handle.call(33, self.data, rhs)[0]
+            if rhs.ndim == 2 and 1 < rhs.shape[1] < BLOCK_SOLVE_FROM:
+                x = np.column_stack([self._handle.call(33, self.data, rhs[:, j])[0] for j in range(rhs.shape[1])])
+            else:
+                x = self._handle.call(33, self.data, rhs)[0]
         return np.ascontiguousarray(x, dtype=np.float64)
 
     def release_matrix(self) -> None:

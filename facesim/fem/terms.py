@@ -119,6 +119,20 @@ class ElasticTerm(NodeTerm):
         other.clamp = float(clamp)
         return other
 
+    def restricted(self, elems) -> "ElasticTerm":
+        """This term on the tets ``elems`` only (a subset of its own), with copies of its own."""
+        other = object.__new__(type(self))
+        other.__dict__.update(self.__dict__)
+        other.elems = np.ascontiguousarray(elems, dtype=np.int64)
+        other._copies = _ChunkCopies()
+        return other
+
+    def touching(self, nodes) -> np.ndarray:
+        """The tets of ``elems`` with a node among ``nodes``."""
+        near = np.zeros(len(self.rest.X), bool)
+        near[np.asarray(nodes, dtype=np.int64)] = True
+        return self.elems[near[self.rest.tets[self.elems]].any(axis=1)]
+
     def __getstate__(self):   # pickled (to a worker) without the chunk-ordered copies
         state = dict(self.__dict__)
         state["_copies"] = None

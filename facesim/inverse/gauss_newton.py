@@ -223,6 +223,23 @@ class _Bounds:
             H[sf, sf] += ph
         return v, g, H
 
+    def box(self):
+        """``(lower, upper, weight)`` over the unknowns when every bound is a box on one of them
+        (activations in [0, 1] with weight 1; a jaw model whose ``penalty_box`` gives its ranges),
+        else None (a solved head frame's rigidity, a jaw model's curved or coupled ranges)."""
+        if self.head is not None:
+            return None
+        m = len(self.space.muscles)
+        lower, upper, weight = np.zeros(self.space.size), np.ones(self.space.size), np.ones(self.space.size)
+        if self.jaw_model is not None:
+            jaw = getattr(self.jaw_model, "penalty_box", lambda: None)()
+            if jaw is None:
+                return None
+            sj = self._slices[1]
+            lower[sj], upper[sj], weight[sj] = (np.broadcast_to(np.asarray(v, dtype=np.float64), (sj.stop - m,))
+                                                for v in jaw)
+        return lower, upper, weight
+
     def violation(self, c) -> float:
         """Largest distance of a control outside its bounds (activations; jaw model bounds)."""
         sa, sj, _ = self.space.slices()
@@ -235,19 +252,29 @@ class _Bounds:
         return max(worst, 0.0)
 
 
-def schedule_penalty(r, J, c, bounds: _Bounds, options: FitOptions, w=None):
+def schedule_penalty(r, J, c, bounds: _Bounds, options: FitOptions, w=None, compiled: bool = True):
     """Minimise the linear model ``1/2 |r + J dc|_W^2 + mu B(c + dc)`` over ``dc`` with the
     progressive penalty schedule. Returns ``(dc, mu, nested steps)``.
 
     ``r (m,)`` current residual P - T (mm), ``J (m, nc)``. The start weight is the penalty at which
     a violation of one unit costs ``start_ratio`` times the noise energy ``noise^2`` (below the
-    noise level), the final weight ``final_ratio`` times the data term at the model minimum."""
+    noise level), the final weight ``final_ratio`` times the data term at the model minimum.
+    Where every bound is a box on one unknown (:meth:`_Bounds.box`) the same schedule runs
+    compiled (:func:`facesim._kernels.schedule.box_schedule`), unless ``compiled=False``."""
     w = np.ones(len(r)) if w is None else w
     JW = J * w[:, None]
     A = J.T @ JW
     A += options.damping * max(float(np.mean(np.diag(A))), 1e-12) * np.eye(len(c))
     b = JW.T @ r
     mu = options.start_ratio * options.noise ** 2
+    box = bounds.box() if compiled else None
+    if box is not None:
+        from facesim._kernels.schedule import box_schedule
+
+        f64 = lambda v: np.ascontiguousarray(v, dtype=np.float64)   # noqa: E731
+        dc, mu, nested = box_schedule(f64(A), f64(b), f64(r), f64(J), f64(w), f64(c), *map(f64, box), float(mu),
+                                      float(options.growth), float(options.final_ratio))
+        return dc, float(mu), int(nested)
     dc = np.zeros(len(c))
     nested = 0
     streak = 0            # nested steps in a row that stayed on one piece of the penalty

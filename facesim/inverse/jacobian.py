@@ -220,13 +220,8 @@ def _jaw_side_terms(sim) -> tuple:
     """The simulator's terms with the flesh restricted to the tets that touch a jaw node: moving
     the jaw changes only their forces, so the bone columns' central differences need no more
     (the flesh gradient is most of a Jacobian's right-hand-side cost otherwise)."""
-    from facesim.fem.terms import ElasticTerm
-
     e = sim.elastic
-    touching = np.zeros(sim.model.n_nodes, bool)
-    touching[sim.model.jaw_nodes] = True
-    near = e.elems[touching[e.rest.tets[e.elems]].any(axis=1)]
-    flesh = ElasticTerm(e.rest, e.c10, e.c01, e.kappa, elems=near, volumetric=sim.options.volumetric, clamp=e.clamp)
+    flesh = e.restricted(e.touching(sim.model.jaw_nodes))
     return tuple(flesh if t is e else t for t in sim.terms)
 
 

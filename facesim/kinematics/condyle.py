@@ -262,6 +262,11 @@ class SlidingCondyleJaw:
         """``(3, 2)`` [lower, upper] per parameter: opening [0, max_opening] rad, slides [0, d] mm."""
         return np.array([[0.0, self.geometry.max_opening], [0.0, self.d], [0.0, self.d]])
 
+    def penalty_box(self):
+        """``(lower, upper, weight)``: :meth:`penalty` is the box penalty of these ranges."""
+        lower, upper = self.bounds.T
+        return lower, upper, np.full(3, self.penalty_weight)
+
     def penalty(self, q=None):
         """Range penalty on ``q = p (3,)``: ``penalty_weight`` * squared distance outside ``bounds``
         (rad² + mm²); returns (value, gradient (3,), Hessian (3, 3)), zero inside the box."""

@@ -127,6 +127,14 @@ class RigJaw:
             return self.rig.clamp(q)
         return np.clip(q, self._bounds[:, 0], self._bounds[:, 1])
 
+    def penalty_box(self):
+        """``(lower, upper, weight)`` when :meth:`penalty` is the box penalty of fixed ranges (a
+        Posselt rig), None for an NLPCA rig (its ranges move with d1)."""
+        if self.kind == "nlpca":
+            return None
+        lower, upper = self._bounds.T
+        return lower.copy(), upper.copy(), np.array(self.penalty_weight, dtype=np.float64)
+
     def penalty(self, q=None):
         """Range penalty Σ_i w_i e_i² with e the distance outside the ranges: (value, gradient (n,),
         Hessian (n, n)); zero inside. For an NLPCA rig e_2, e_3 are measured against the ranges at

@@ -249,6 +249,30 @@ def test_pardiso_single_precision_factor_refines_to_double():
     assert np.linalg.norm(S @ x - b) < 1e-9 * np.linalg.norm(b)
 
 
+@pytest.mark.parametrize("k", [2, 3, 7, 8, 12])
+def test_pardiso_few_columns_are_solved_one_by_one_as_in_a_block(k):
+    """Below ``BLOCK_SOLVE_FROM`` columns PARDISO solves each column on its own (its block path
+    was slower there); the result is the single-column solves', in either precision and order."""
+    pytest.importorskip("pypardiso")
+    from facesim.fem.linear import BLOCK_SOLVE_FROM, PardisoFactor
+
+    rng = np.random.default_rng(k)
+    A = laplacian_3d(8)
+    B = rng.normal(size=(A.shape[0], k))
+    for single in (True, False):
+        f = PardisoFactor(A, single=single)
+        X = f.precondition(B)
+        assert X.shape == B.shape and X.flags.c_contiguous
+        one = np.column_stack([f.precondition(B[:, j]) for j in range(k)])
+        tol = 1e-6 if single else 1e-13
+        np.testing.assert_allclose(X, one, rtol=tol, atol=tol * np.abs(one).max())
+        assert np.linalg.norm(A @ X - B) < 10 * tol * np.linalg.norm(B)
+        if k < BLOCK_SOLVE_FROM:   # the very same solves
+            np.testing.assert_array_equal(X, one)
+        X2 = f.precondition(np.asfortranarray(B))   # a column-major right-hand side too
+        np.testing.assert_array_equal(X2, X)
+
+
 def test_pardiso_solves_on_one_and_two_threads_agree(monkeypatch):
     """The triangular solves of a large factor run on numba's thread count, of a small one on one,
     unless ``FACESIM_SOLVE_THREADS`` says otherwise; one and two threads give the same single-precision solution (a threaded solve of a

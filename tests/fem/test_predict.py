@@ -96,3 +96,56 @@ def test_small_motions_keep_the_harmonic_guess(box_model, monkeypatch):
     guess = sim.predict(controls)
     _harmonic_only(monkeypatch)
     np.testing.assert_array_equal(guess, sim.predict(controls))
+
+
+def test_element_quality_counts_inverted_tets_and_finds_the_least_volume_ratio(box_model):
+    """The compiled volume ratios against numpy's signed volumes over the simulated tets, with
+    tets inverted on purpose; non-finite positions are reported, not measured."""
+    from facesim.model import signed_volumes
+
+    sim = FaceSimulator(box_model, jaw_model=RigidJaw())
+    rng = np.random.default_rng(8)
+    x = box_model.X + rng.normal(scale=3.0, size=box_model.X.shape)
+    T = box_model.tets[sim.elems]
+    J = signed_volumes(x, T) / signed_volumes(box_model.X, T)
+    assert (J <= 0).sum() >= 3   # the noise inverted some
+    inverted, low = sim.element_quality(x)
+    assert inverted == int((J <= 0).sum())
+    assert low == pytest.approx(J.min(), rel=1e-12, abs=1e-12)
+    assert sim.element_quality(box_model.X) == (0, pytest.approx(1.0, abs=1e-12))
+    x[3] = np.nan
+    inverted, low = sim.element_quality(x)
+    assert inverted == -1 and np.isnan(low)
+
+
+@pytest.mark.parametrize("head", ["none", "rotated", "sheared"])
+def test_force_scale_of_the_cold_start_needs_only_the_jaw_s_tets(head):
+    """``force_scale`` leaves out the flesh a cold start moves rigidly: it equals the full energy's
+    residual at the cold start (rest shape, bones placed) at either clamp, with the head still,
+    rotated, or with a head transform a little off rigid (then every tet is strained: the full sum)."""
+    from pathlib import Path
+
+    from facesim.controls import rotation_about
+    from facesim.fem.newton import Problem
+    from facesim.kinematics.condyle import SlidingCondyleJaw
+    from facesim.model import load_model
+
+    model = load_model(Path(__file__).resolve().parents[2] / "meshes" / "face_coarse.npz")
+    sim = FaceSimulator(model, jaw_model=SlidingCondyleJaw(model.jaw))
+    assert sim._path_elastic is not None   # both clamps are exercised
+    rng = np.random.default_rng(2)
+    H = None
+    if head != "none":
+        H = rotation_about(np.array([0.05, -0.1, 0.08]), np.array([0.0, 10.0, 0.0]))
+        H[:3, 3] += [1.0, -2.0, 0.5]
+        if head == "sheared":
+            H[:3, :3] = H[:3, :3] @ np.diag([1.0 + 3e-5, 1.0, 1.0])   # within the rigidity check's 1e-4
+    c = Controls(rng.uniform(0, 1, model.n_muscles), np.array([0.15, 1.0, 2.0]), H)
+    for path in (True, False):
+        at = sim._at_path_clamp if path else (lambda p: p)
+        prob = at(Problem(sim.terms, sim.system, sim.attached_positions(c), c.a))
+        full = float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]))
+        assert full > 1.0
+        assert sim.force_scale(c, path=path) == pytest.approx(full, rel=1e-12)
+    jaw_tets = sim._cold_flesh(True).elems
+    assert 0 < len(jaw_tets) < len(sim.elems) / 4   # a fraction of the flesh

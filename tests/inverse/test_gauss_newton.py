@@ -39,6 +39,64 @@ def test_schedule_drives_a_violating_model_onto_the_bound():
     assert dc_in[0] == pytest.approx(0.4, rel=1e-5)   # up to the 1e-6 Levenberg-Marquardt damping
 
 
+class _BoxJaw:
+    """A jaw model stand-in with a box penalty on three parameters (as the sliding-condyle's),
+    unit weights but the slides' 4."""
+    n_params = 3
+    bounds = np.array([[0.0, 0.4], [0.0, 5.0], [0.0, 5.0]])
+    weight = np.array([1.0, 4.0, 4.0])
+
+    def penalty(self, q):
+        e = np.maximum(q - self.bounds[:, 1], 0.0) + np.minimum(q - self.bounds[:, 0], 0.0)
+        return float(self.weight @ e ** 2), 2.0 * self.weight * e, np.diag(2.0 * self.weight * (e != 0))
+
+    def penalty_box(self):
+        return self.bounds[:, 0], self.bounds[:, 1], self.weight
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_compiled_schedule_takes_the_python_schedule_s_steps(seed):
+    """The compiled box schedule against the Python one on random linear models whose minimum
+    leaves the box on several activations and jaw parameters (the piece changes, streaks and the
+    landing on the target all exercised): the same step to 1e-10, weight and nested count."""
+    rng = np.random.default_rng(seed)
+    space = ControlSpace(8, n_jaw=3)
+    bounds = _Bounds(space, _BoxJaw())
+    assert bounds.box() is not None
+    J = rng.normal(size=(60, 11)) * rng.uniform(0.1, 3.0, 11)
+    target = np.r_[rng.uniform(-0.6, 1.6, 8), rng.uniform(-0.2, 0.6), rng.uniform(-2.0, 7.0, 2)]
+    c = np.r_[rng.uniform(0, 1, 8), 0.1, 1.0, 1.0]
+    r = -J @ (target - c) + rng.normal(scale=0.3, size=60)
+    w = rng.uniform(0.5, 2.0, 60)
+    options = FitOptions(noise=0.5)
+    ref = schedule_penalty(r, J, c, bounds, options, w, compiled=False)
+    got = schedule_penalty(r, J, c, bounds, options, w)
+    assert ref[2] > 20 and got[2] == ref[2]
+    assert got[1] == pytest.approx(ref[1], rel=1e-12)
+    np.testing.assert_allclose(got[0], ref[0], rtol=0, atol=1e-10 * (1 + np.abs(ref[0]).max()))
+    # the bounds held: within 1e-4 of the box, some unknowns on it
+    lower, upper, _ = bounds.box()
+    at = c + got[0]
+    assert (at > lower - 1e-4).all() and (at < upper + 1e-4).all()
+    assert ((np.abs(at - lower) < 1e-4) | (np.abs(at - upper) < 1e-4)).sum() >= 2
+
+
+def test_schedule_box_form_only_for_box_bounds(box_model):
+    """The compiled path takes boxes only: a sliding-condyle jaw's ranges, or no jaw; not a solved
+    head frame's rigidity nor a jaw model without ``penalty_box``."""
+    jaw = SlidingCondyleJaw(box_model.jaw)
+    lower, upper, weight = _Bounds(ControlSpace(2, n_jaw=3), jaw).box()
+    np.testing.assert_array_equal(lower, np.r_[0, 0, jaw.bounds[:, 0]])
+    np.testing.assert_array_equal(upper, np.r_[1, 1, jaw.bounds[:, 1]])
+    np.testing.assert_array_equal(weight, np.r_[1, 1, [jaw.penalty_weight] * 3])
+    assert _Bounds(ControlSpace(2), None).box() is not None
+
+    curved = _BoxJaw()
+    curved.penalty_box = lambda: None   # e.g. an NLPCA rig: its ranges move with d1
+    assert _Bounds(ControlSpace(2, n_jaw=3), curved).box() is None
+    assert _Bounds(ControlSpace(2), None, head=object()).box() is None
+
+
 def test_recovers_activations_and_jaw_from_exact_markers(box_sim, box_model):
     truth = Controls([0.6, 0.5], jaw=[0.15, 2.0, 1.5])
     T = box_model.marker_positions(box_sim.equilibrium(truth).x)
