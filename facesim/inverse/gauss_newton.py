@@ -113,7 +113,7 @@ class FitOptions:
     jacobian_max_age: int = 8
     jacobian_drift: float = 0.1
     chord: bool = True
-    resolution: float = 1.5
+    resolution: float = 2.0
     jacobian_rtol: float = 1e-6   # CG tolerance per Jacobian column (AMG path; direct: DIRECT_COLUMN_RTOL)
     max_seconds: float | None = None
 
@@ -411,9 +411,11 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     # A step dc moves the estimate by |J dc|_W / noise = sqrt(2 predicted) / noise standard deviations
     # of its marker-noise covariance noise^2 (J^T W J)^-1. Stopping short of a step of k of them
     # leaves an error of at most k on top of the noise's, which is sqrt(n) of them over n controls
-    # (~6 for 35): the expected error grows by sqrt(1 + k^2 / n), 3 % for k = 1.5 and n = 35, while
-    # the step saved is a whole equilibrium. Measured on the demo clip (benchmarks/RESULTS.md): the
-    # recovery is the same for k = 1, 1.5 and 2 (marker RMS, activation and jaw errors).
+    # (~6 for 35): the expected error grows by sqrt(1 + k^2 / n), 6 % for k = 2 and n = 35, while
+    # the step saved is a whole equilibrium and often a Jacobian. Measured on the demo clip
+    # (benchmarks/RESULTS.md): the recovery is the same for k = 1, 1.5 and 2 (session 11; marker RMS,
+    # activation and jaw errors), and k = 2 takes 100 steps on it against 114 at 1.5, 10 % of its
+    # time (session 33; the medium face's benchmark: the same errors, half the Jacobians).
     resolution = 0.5 * (options.resolution * options.noise) ** 2
 
     def solve(ctrl, warm, source, previous=None):
@@ -589,7 +591,7 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
                 if not J.nearby:   # a Jacobian solved with a nearby tangent mispredicts the motion by itself
                     alpha, F_new, x_new = _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options,
                                                   (J.dP @ dc[:nc])[rows], functools.partial(motion, start=Ph),
-                                                  w3, J)
+                                                  w3, J, resolution)
                 clock["line_search"] += time.perf_counter() - t
             elif J.age > 0:   # the model of an updated Jacobian failed: evaluate it here and step again
                 J = None
@@ -671,20 +673,23 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
     return Fit(final, x, P, rep, J, head_frame=None if head is None else head.matrix(c[nc:]))
 
 
-def _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options, linear, moved, w, J):
+def _extend(solve, objective, ctrl, c, dc, x, x1, F1, mu, options, linear, moved, w, J, resolution=0.0):
     """Lengthen a kept full step where Gauss-Newton undershoots (muscles stiffen as they shorten,
     flesh against bone): the markers moved only a fraction ``phi(alpha)`` of the predicted motion
     ``linear = J dc`` (kept rows) along it. The step minimises ``|r + phi J dc|`` at ``phi = 1``, so
     ``phi(alpha) = 1`` is solved by secant steps (at most ``EXTEND_TRIALS`` more equilibria, each
-    warm-started by extrapolating the last two), kept while the objective falls.
-    ``moved(x) (k,)``: marker motion from the start; ``ctrl(c)``: the controls of the unknowns
-    ``c``. Returns ``(alpha, F, x)``."""
+    warm-started by extrapolating the last two), kept while the objective falls -- and while the
+    decrease left to gain, ``1/2 (1 - phi)^2 |J dc|_W^2`` by the linear model (whose minimum is at
+    ``phi = 1``), is above ``resolution``, the stopping rule's: on the demo clip 38 of 40 extension
+    trials gained nothing, their markers within the noise of the prediction (benchmarks/RESULTS.md,
+    session 33). ``moved(x) (k,)``: marker motion from the start; ``ctrl(c)``: the controls of the
+    unknowns ``c``. Returns ``(alpha, F, x)``."""
     norm = max(float(linear @ (w * linear)), 1e-300)
     path = [(0.0, 0.0, x), (1.0, float(linear @ (w * moved(x1))) / norm, x1)]
     best = (1.0, F1, x1)
     for _ in range(EXTEND_TRIALS):
         (a0, p0, xa0), (a1, p1, xa1) = path[-2], path[-1]
-        if p1 >= 1.0 / EXTRAPOLATE_ABOVE or p1 <= p0:
+        if p1 >= 1.0 / EXTRAPOLATE_ABOVE or p1 <= p0 or 0.5 * norm * (1.0 - p1) ** 2 <= resolution:
             break
         a2 = min(a1 + (1.0 - p1) * (a1 - a0) / (p1 - p0), options.max_step)
         if a2 <= a1 * EXTRAPOLATE_ABOVE:
