@@ -97,6 +97,30 @@ def test_schedule_box_form_only_for_box_bounds(box_model):
     assert _Bounds(ControlSpace(2), None, head=object()).box() is None
 
 
+def test_a_kept_step_is_lengthened_only_while_the_gain_left_exceeds_the_resolution():
+    """``_extend`` on a step whose markers moved 0.9 of the prediction: the linear model leaves
+    ``1/2 (1 - 0.9)^2 |J dc|^2`` to gain by lengthening it; below the resolution no trial is
+    solved, above it the secant step to the predicted motion is tried (at alpha 1 + 0.1 / 0.9)."""
+    from facesim.inverse.gauss_newton import FitOptions, _extend
+
+    linear = np.full(12, 2.0)            # |J dc|^2 = 48: the gain left at phi 0.9 is 0.24
+    w = np.ones(12)
+    trials = []
+
+    def solve(ctrl, warm, J):
+        trials.append(warm.copy())
+        return warm
+
+    x0, x1 = np.zeros((4, 3)), np.ones((4, 3))
+    moved = lambda x: 0.9 * linear * float(x.mean())   # noqa: E731  (phi = 0.9 at x1)
+    objective = lambda c, x, mu: 10.0 - float(x.mean())   # noqa: E731  (longer is better)
+    args = (solve, objective, lambda c: c, np.zeros(2), np.ones(2), x0, x1, 9.0, 0.0, FitOptions(), linear,
+            moved, w, None)
+    assert _extend(*args, resolution=0.25) == (1.0, 9.0, x1) and not trials
+    alpha, F, x = _extend(*args, resolution=0.2)
+    assert len(trials) >= 1 and alpha == pytest.approx(1.0 + 0.1 / 0.9) and F < 9.0
+
+
 def test_recovers_activations_and_jaw_from_exact_markers(box_sim, box_model):
     truth = Controls([0.6, 0.5], jaw=[0.15, 2.0, 1.5])
     T = box_model.marker_positions(box_sim.equilibrium(truth).x)
