@@ -411,7 +411,7 @@ class FaceSimulator:
             flesh = self._cold_flesh(path)
             terms = tuple(flesh if t is self.elastic else t for t in self.terms) + tuple(extra_terms)
             prob = Problem(terms, self.system, cold, controls.a)
-        else:   # an affine head frame that is not a rotation strains every tet
+        else:   # a head transform a little off rigid (controls accept |R^T R - I| <= 1e-4) strains every tet
             prob = at(Problem(self.terms + tuple(extra_terms), self.system, cold, controls.a))
         scale = float(np.linalg.norm(prob.energy_and_gradient(prob.x_fixed)[1]))
         if start is not None:

@@ -90,6 +90,20 @@ def test_schedule_box_form_only_for_box_bounds(box_model):
     np.testing.assert_array_equal(upper, np.r_[1, 1, jaw.bounds[:, 1]])
     np.testing.assert_array_equal(weight, np.r_[1, 1, [jaw.penalty_weight] * 3])
     assert _Bounds(ControlSpace(2), None).box() is not None
+    # the jaw models that give a box: their penalty is the box penalty of it, inside and out
+    from facesim.jaw.model_rig import fit_model_rig
+    from facesim.kinematics.rig_jaw import RigJaw
+
+    rng = np.random.default_rng(4)
+    for model in (jaw, RigJaw(fit_model_rig(box_model.jaw))):
+        lo, hi, wt = model.penalty_box()
+        for _ in range(20):
+            q = lo + (hi - lo) * rng.uniform(-0.4, 1.4, len(lo))
+            e = np.maximum(q - hi, 0.0) + np.minimum(q - lo, 0.0)
+            v, g, H = model.penalty(q)
+            assert v == pytest.approx(float(wt @ e ** 2), rel=1e-12, abs=1e-15)
+            np.testing.assert_allclose(g, 2 * wt * e, rtol=1e-12, atol=1e-15)
+            np.testing.assert_allclose(H, np.diag(2 * wt * (e != 0)), rtol=1e-12, atol=1e-15)
 
     curved = _BoxJaw()
     curved.penalty_box = lambda: None   # e.g. an NLPCA rig: its ranges move with d1
