@@ -31,22 +31,9 @@ N_FRAMES = 10
 
 # ------------------------------------------------------------------ the two runs
 def run(kind: str, folder, out, resume: bool = False, overwrite: bool = False, model: str = "model.npz",
-        shift: float = 0.0, progress: bool = False, pace: float = 0.0) -> dict:
+        shift: float = 0.0, progress: bool = False) -> dict:
     """The run of ``kind`` (``"track"`` or ``"simulate"``) on the inputs in ``folder`` (see the
-    ``inputs`` fixture) into ``out``; the same in this process and in a subprocess. ``pace`` (s):
-    a pause after every line a frame log writes, so a signal sent after the n-th frame lands
-    before the run ends however fast its frames are (the box model's took a few ms each, and under
-    a busy test worker the rest of the run once finished before a SIGINT arrived)."""
-    if pace:
-        from facesim.framelog import FrameLog
-
-        add = FrameLog.add
-
-        def paced(self, line):
-            add(self, line)
-            time.sleep(pace)
-
-        FrameLog.add = paced
+    ``inputs`` fixture) into ``out``; the same in this process and in a subprocess."""
     from facesim.fem.equilibrium import EquilibriumOptions
     from facesim.fem.newton import NewtonOptions
     from facesim.inverse.gauss_newton import FitOptions
@@ -137,13 +124,16 @@ def rows(path: Path) -> int:
 
 
 def start_run(kind: str, inputs: Path, out: Path, *, fsize: int | None = None) -> subprocess.Popen:
-    """The run in a subprocess (one solver thread; with ``fsize``, a file size limit in bytes and
-    SIGXFSZ ignored, so writes past it fail with EFBIG); its stderr goes to ``out``'s sibling
-    ``stderr.txt``."""
+    """The run in a subprocess (one solver thread; SIGINT raising KeyboardInterrupt whatever this
+    process ignores; with ``fsize``, a file size limit in bytes and SIGXFSZ ignored, so writes past
+    it fail with EFBIG); its stderr goes to ``out``'s sibling ``stderr.txt``."""
     limit = "" if fsize is None else (
         f"import resource, signal; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
         f"resource.setrlimit(resource.RLIMIT_FSIZE, ({fsize}, {fsize})); ")
-    code = f"{limit}from tests.test_resume import run; run({kind!r}, {str(inputs)!r}, {str(out)!r}, pace=0.1)"
+    # SIGINT back to KeyboardInterrupt: a child inherits an ignored SIGINT (a pytest-xdist worker's,
+    # after some library set it so), and then ran to its end through the test's Ctrl-C
+    code = (f"import signal; signal.signal(signal.SIGINT, signal.default_int_handler); {limit}"
+            f"from tests.test_resume import run; run({kind!r}, {str(inputs)!r}, {str(out)!r})")
     env = {**os.environ, "NUMBA_NUM_THREADS": "1"}
     with open(out.parent / "stderr.txt", "w") as err:
         return subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
