@@ -131,7 +131,6 @@ class FaceSimulator:
         self.jaw_model: JawModel = RigidJaw() if jaw_model is None else make_jaw_model(model, jaw_model)
         self.rest = RestShape(model.X, model.tets)
         self.elems = np.flatnonzero(model.simulated)
-        self._elems64 = np.ascontiguousarray(self.elems, dtype=np.int64)   # for the per-tet kernels
         n = model.n_nodes
         fixed = np.zeros((n, 3), bool)
         fixed[model.cranium_nodes] = True
@@ -144,7 +143,7 @@ class FaceSimulator:
                                    np.array([t.kappa for t in tis])[idx], elems=self.elems,
                                    volumetric=self.options.volumetric, clamp=self.options.clamp)
         self._path_elastic = None
-        self._cold = None   # the flesh of the tets a cold start deforms, by clamp (force_scale)
+        self._cold = {}   # the flesh of the tets a cold start deforms, by clamp (force_scale)
         if self.options.clamp < PATH_CLAMP:
             self._path_elastic = self.elastic.with_clamp(PATH_CLAMP)
         self.elastic._chunked(self.system)   # the system's chunk order: the gradient's too (no second copy)
@@ -370,7 +369,7 @@ class FaceSimulator:
         from facesim._kernels.elements import min_signed_singular_value
 
         return float(min_signed_singular_value(np.ascontiguousarray(x, dtype=np.float64), self.rest.tets,
-                                               self.rest.Bm, self._elems64))
+                                               self.rest.Bm, self.elems))
 
     def _newton(self, prob: Problem, options: NewtonOptions, scale: float, clamp_scale=None, linear=None):
         """Newton on ``prob``, first at :data:`PATH_CLAMP` when the options' clamp is smaller
@@ -424,8 +423,6 @@ class FaceSimulator:
         where that is larger than the options' clamp) or the options' clamp: all the flesh that a
         cold start (:meth:`attached_positions` without ``x``) deforms."""
         key = bool(path and self._path_elastic is not None)
-        if self._cold is None:
-            self._cold = {}
         if key not in self._cold:
             e = self._path_elastic if key else self.elastic
             self._cold[key] = e.restricted(e.touching(self.model.jaw_nodes))
@@ -515,7 +512,7 @@ class FaceSimulator:
         if not np.isfinite(x).all():
             return -1, float("nan")
         inverted, low = volume_ratio_range(np.ascontiguousarray(x, dtype=np.float64), self.rest.tets, self.rest.Bm,
-                                           self._elems64)
+                                           self.elems)
         return int(inverted), float(low)
 
     def internal_force(self, x, a) -> np.ndarray:

@@ -270,9 +270,8 @@ class SlidingCondyleJaw:
     def penalty(self, q=None):
         """Range penalty on ``q = p (3,)``: ``penalty_weight`` * squared distance outside ``bounds``
         (rad² + mm²); returns (value, gradient (3,), Hessian (3, 3)), zero inside the box."""
-        p = self._p(q)
-        lower, upper = self.bounds.T
-        return _range_penalty(p, lower, upper, np.full(3, self.penalty_weight), np.eye(3))
+        lower, upper, weight = self.penalty_box()
+        return _range_penalty(self._p(q), lower, upper, weight, np.eye(3))
 
 
 class KinematicTerm(ParameterTerm):
