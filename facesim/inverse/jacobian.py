@@ -374,11 +374,20 @@ def _equilibrium_jacobian(sim, controls, x, space, extra_terms, linear_solver, r
                                nearby=given is not None)
 
 
-# CG tolerance of the Newton steps after the chord iterations. Was 0.1 tol / |g| (a linear solve
-# accurate enough to converge in one step if the problem were linear): up to 1e-6 on a first step
-# whose nonlinearity then cut the residual only 30-fold. A fixed 1e-2: 31 % fewer triangular solves
-# on the demo clip for 4 % more Newton steps, the same recovery (benchmarks/RESULTS.md, session 22).
-CHORD_NEWTON_RTOL = 1e-2
+# CG tolerance of the Newton steps after the chord iterations: a forcing term (Eisenstat & Walker
+# 1996, their choice 2), ``CHORD_NEWTON_GAMMA (|g_k| / |g_k-1|)^2`` after a Newton step, at most
+# CHORD_NEWTON_RTOL (and that on a first Newton step), and no tighter than CHORD_LAST_SHARE of
+# what is left to the tolerance. History: 0.1 tol / |g| (up to 1e-6 on a first step whose
+# nonlinearity then cut the residual only 30-fold), then a fixed 1e-2 (session 22: 31 % fewer
+# triangular solves on the demo clip). The nonlinear part of a step's error sets its rate (the
+# paper-size face's tracked frames: 0.2-0.3 on the first Newton step), so the first steps' CG is
+# solved only to what the step can use: the paper-size face's tracked frames 23-32 CG iterations
+# against 32-47, one Newton step fewer in two of three (benchmarks/RESULTS.md, session 34).
+CHORD_NEWTON_RTOL = 1e-1
+CHORD_NEWTON_GAMMA = 0.9
+#: the share of the distance to the tolerance (``tol / |g|``) a Newton step's CG of
+#: :func:`near_equilibrium` is solved to, at the least: the step's nonlinear error adds the rest
+CHORD_LAST_SHARE = 0.5
 #: step lengths a Newton step of :func:`near_equilibrium` that did not shrink the residual enough is
 #: cut back to (each one gradient), before the solve is given up to a Newton solve with line search
 NEWTON_BACKTRACK = (0.5, 0.25, 0.125)
@@ -440,6 +449,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         best_u = u.copy()
         retried = False
         du = None
+        newton_before = False   # the step to this iterate was a Newton step (its rate predicts the next one's)
         for it in range(max_iterations + 1):
             g = g0 if it == 0 else prob.energy_and_gradient(x)[1]
             res = float(np.linalg.norm(g))
@@ -478,11 +488,14 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
                 du = inverse(-g)
                 solves += 1
             else:
-                du, info, its = counted_cg(prob.hessian(x, project=False), -g, CHORD_NEWTON_RTOL,
-                                           CHORD_NEWTON_MAXITER, M)
+                # the forcing term: the last Newton step's rate predicts this one's (superlinear)
+                eta = CHORD_NEWTON_RTOL if not newton_before else min(CHORD_NEWTON_RTOL, CHORD_NEWTON_GAMMA * rate ** 2)
+                du, info, its = counted_cg(prob.hessian(x, project=False), -g,
+                                           max(eta, CHORD_LAST_SHARE * tol / res), CHORD_NEWTON_MAXITER, M)
                 solves += its
                 if info != 0:
                     return best, it, solves, False
+            newton_before = not chord
             du[~system.free_dof] = 0.0
             u += du
             x = prob.positions(u)

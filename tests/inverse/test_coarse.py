@@ -116,7 +116,12 @@ def test_a_cold_frame_coarse_to_fine_recovers_the_activations(fine_sim, box_mode
     # six markers leave the box's jaw loosely determined (both fits open it 0.09 rad, not 0.04):
     # the coarse-to-fine fit lands where the full model's own cold fit does
     np.testing.assert_allclose(fit.controls.a, cold.controls.a, atol=0.01)
-    assert np.all(np.abs(np.subtract(fit.controls.jaw, cold.controls.jaw)) <= [0.005, 0.2, 0.2]), \
+    # ... within what the stopping rule resolves: along that loose jaw direction a change of the
+    # opening by 0.006 rad moves the objective by less than the rule's resolution (0.5 (2 noise)^2
+    # = 0.005 mm^2; measured: 0.0882 rad at 0.0185 against the cold fit's 0.0947 rad at 0.0200)
+    resolution = 0.5 * (options.resolution * options.noise) ** 2
+    assert fit.report.objective[-1] <= cold.report.objective[-1] + resolution
+    assert np.all(np.abs(np.subtract(fit.controls.jaw, cold.controls.jaw)) <= [0.01, 0.2, 0.2]), \
         (fit.controls.jaw, cold.controls.jaw)
     assert fit.report.marker_rms <= cold.report.marker_rms + 0.01
     assert fit.report.timing["coarse"] > 0.0

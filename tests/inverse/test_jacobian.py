@@ -236,3 +236,38 @@ def test_pardiso_superlu_and_amg_jacobians_agree(box_model):
     np.testing.assert_allclose(xp, xs, atol=1e-6)
     with pytest.raises(FacesimError, match="linear_solver"):
         equilibrium_jacobian(sim, controls, x, space, linear_solver="mumps")
+
+
+def test_near_equilibrium_newton_steps_solve_cg_to_a_forcing_term(box_model, monkeypatch):
+    """The Newton steps of near_equilibrium solve CG only as far as the step can use: the first
+    to CHORD_NEWTON_RTOL, each later one to CHORD_NEWTON_GAMMA times the square of the last
+    Newton step's rate (Eisenstat-Walker), never tighter than CHORD_LAST_SHARE of what is left to
+    the tolerance -- and reach the equilibrium Newton reaches from the same start."""
+    import facesim.inverse.jacobian as jac
+
+    sim, eq, J, dc, target = _near_case(box_model)
+    newton = sim.equilibrium(target, x0=J.predict(dc))
+    exact_cg, exact_scale = jac.counted_cg, type(sim).force_scale
+    calls, scales = [], []
+
+    def recording_cg(A, b, rtol, maxiter, M):
+        calls.append((float(np.linalg.norm(b)), rtol))
+        return exact_cg(A, b, rtol, maxiter, M)
+
+    def recording_scale(self, *args, **kwargs):
+        scales.append(exact_scale(self, *args, **kwargs))
+        return scales[-1]
+
+    monkeypatch.setattr(jac, "counted_cg", recording_cg)
+    monkeypatch.setattr(type(sim), "force_scale", recording_scale)
+    x, iterations, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
+    assert ok and len(calls) >= 2, calls   # one chord iteration, then Newton steps
+    scale = np.abs(newton.x - eq.x).max()
+    np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
+    tol = sim.options.newton.rtol * scales[-1] + sim.options.newton.atol
+    for k, (res, rtol) in enumerate(calls):
+        eta = jac.CHORD_NEWTON_RTOL if k == 0 else min(jac.CHORD_NEWTON_RTOL,
+                                                       jac.CHORD_NEWTON_GAMMA * (res / calls[k - 1][0]) ** 2)
+        assert rtol == pytest.approx(max(eta, jac.CHORD_LAST_SHARE * tol / res), rel=1e-12), (k, calls)
+    # the later steps are solved tighter than the first: the forcing term follows the convergence
+    assert calls[-1][1] < calls[0][1]
