@@ -271,3 +271,42 @@ def test_near_equilibrium_newton_steps_solve_cg_to_a_forcing_term(box_model, mon
         assert rtol == pytest.approx(max(eta, jac.CHORD_LAST_SHARE * tol / res), rel=1e-12), (k, calls)
     # the later steps are solved tighter than the first: the forcing term follows the convergence
     assert calls[-1][1] < calls[0][1]
+
+
+def test_near_equilibrium_last_newton_step_reuses_the_tangent(box_model, monkeypatch):
+    """A Newton step of near_equilibrium whose predecessor's rate would take it within
+    CHORD_LAST_SHARE of the tolerance reuses that step's tangent (the same matrix, no assembly);
+    every other Newton step assembles its own. The solve still reaches Newton's equilibrium."""
+    import facesim.fem.newton as fem_newton
+    import facesim.inverse.jacobian as jac
+
+    sim, eq, J, dc, target = _near_case(box_model)
+    newton = sim.equilibrium(target, x0=J.predict(dc))
+    exact_cg, exact_scale, exact_hessian = jac.counted_cg, type(sim).force_scale, fem_newton.Problem.hessian
+    calls, scales, assembled = [], [], []
+
+    def recording_cg(A, b, rtol, maxiter, M):
+        calls.append((float(np.linalg.norm(b)), A))
+        return exact_cg(A, b, rtol, maxiter, M)
+
+    def recording_scale(self, *args, **kwargs):
+        scales.append(exact_scale(self, *args, **kwargs))
+        return scales[-1]
+
+    def counting_hessian(self, *args, **kwargs):
+        assembled.append(exact_hessian(self, *args, **kwargs))
+        return assembled[-1]
+
+    monkeypatch.setattr(jac, "counted_cg", recording_cg)
+    monkeypatch.setattr(type(sim), "force_scale", recording_scale)
+    monkeypatch.setattr(fem_newton.Problem, "hessian", counting_hessian)
+    x, _, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
+    assert ok
+    np.testing.assert_allclose(x, newton.x, atol=1e-6 * np.abs(newton.x - eq.x).max())
+    tol = sim.options.newton.rtol * scales[-1] + sim.options.newton.atol
+    reuse = [k > 0 and (res / calls[k - 1][0]) * res <= jac.CHORD_LAST_SHARE * tol
+             for k, (res, _) in enumerate(calls)]
+    assert any(reuse) and not all(reuse), [c[0] for c in calls]   # the case exercises both
+    for k, (res, A) in enumerate(calls):
+        assert (A is calls[k - 1][1]) == reuse[k], (k, [c[0] for c in calls])
+    assert len(assembled) == len(calls) - sum(reuse)
