@@ -238,45 +238,10 @@ def test_pardiso_superlu_and_amg_jacobians_agree(box_model):
         equilibrium_jacobian(sim, controls, x, space, linear_solver="mumps")
 
 
-def test_near_equilibrium_newton_steps_solve_cg_to_a_forcing_term(box_model, monkeypatch):
-    """The Newton steps of near_equilibrium solve CG only as far as the step can use: the first
-    to CHORD_NEWTON_RTOL, each later one to CHORD_NEWTON_GAMMA times the square of the last
-    Newton step's rate (Eisenstat-Walker), never tighter than CHORD_LAST_SHARE of what is left to
-    the tolerance -- and reach the equilibrium Newton reaches from the same start."""
-    import facesim.inverse.jacobian as jac
-
-    sim, eq, J, dc, target = _near_case(box_model)
-    newton = sim.equilibrium(target, x0=J.predict(dc))
-    exact_cg, exact_scale = jac.counted_cg, type(sim).force_scale
-    calls, scales = [], []
-
-    def recording_cg(A, b, rtol, maxiter, M):
-        calls.append((float(np.linalg.norm(b)), rtol))
-        return exact_cg(A, b, rtol, maxiter, M)
-
-    def recording_scale(self, *args, **kwargs):
-        scales.append(exact_scale(self, *args, **kwargs))
-        return scales[-1]
-
-    monkeypatch.setattr(jac, "counted_cg", recording_cg)
-    monkeypatch.setattr(type(sim), "force_scale", recording_scale)
-    x, iterations, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
-    assert ok and len(calls) >= 2, calls   # one chord iteration, then Newton steps
-    scale = np.abs(newton.x - eq.x).max()
-    np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
-    tol = sim.options.newton.rtol * scales[-1] + sim.options.newton.atol
-    for k, (res, rtol) in enumerate(calls):
-        eta = jac.CHORD_NEWTON_RTOL if k == 0 else min(jac.CHORD_NEWTON_RTOL,
-                                                       jac.CHORD_NEWTON_GAMMA * (res / calls[k - 1][0]) ** 2)
-        assert rtol == pytest.approx(max(eta, jac.CHORD_LAST_SHARE * tol / res), rel=1e-12), (k, calls)
-    # the later steps are solved tighter than the first: the forcing term follows the convergence
-    assert calls[-1][1] < calls[0][1]
-
-
-def test_near_equilibrium_last_newton_step_reuses_the_tangent(box_model, monkeypatch):
-    """A Newton step of near_equilibrium whose predecessor's rate would take it within
-    CHORD_LAST_SHARE of the tolerance reuses that step's tangent (the same matrix, no assembly);
-    every other Newton step assembles its own. The solve still reaches Newton's equilibrium."""
+def _recorded_near_solve(box_model, monkeypatch):
+    """near_equilibrium on :func:`_near_case` (one chord iteration, then Newton steps) with its CG
+    calls ``(|b|, A, rtol)``, its tolerance and its Hessian assemblies recorded; checks that it
+    reaches the equilibrium Newton reaches from the same start."""
     import facesim.fem.newton as fem_newton
     import facesim.inverse.jacobian as jac
 
@@ -286,7 +251,7 @@ def test_near_equilibrium_last_newton_step_reuses_the_tangent(box_model, monkeyp
     calls, scales, assembled = [], [], []
 
     def recording_cg(A, b, rtol, maxiter, M):
-        calls.append((float(np.linalg.norm(b)), A))
+        calls.append((float(np.linalg.norm(b)), A, rtol))
         return exact_cg(A, b, rtol, maxiter, M)
 
     def recording_scale(self, *args, **kwargs):
@@ -301,12 +266,37 @@ def test_near_equilibrium_last_newton_step_reuses_the_tangent(box_model, monkeyp
     monkeypatch.setattr(type(sim), "force_scale", recording_scale)
     monkeypatch.setattr(fem_newton.Problem, "hessian", counting_hessian)
     x, _, _, ok = jac.near_equilibrium(sim, target, J.predict(dc), J.tangent, chord_rate=0.0)
-    assert ok
+    assert ok and len(calls) >= 2, [c[0] for c in calls]
     np.testing.assert_allclose(x, newton.x, atol=1e-6 * np.abs(newton.x - eq.x).max())
-    tol = sim.options.newton.rtol * scales[-1] + sim.options.newton.atol
+    return calls, sim.options.newton.rtol * scales[-1] + sim.options.newton.atol, len(assembled)
+
+
+def test_near_equilibrium_newton_steps_solve_cg_to_a_forcing_term(box_model, monkeypatch):
+    """The Newton steps of near_equilibrium solve CG only as far as the step can use: the first
+    to CHORD_NEWTON_RTOL, each later one to CHORD_NEWTON_GAMMA times the square of the last
+    Newton step's rate (Eisenstat-Walker), never tighter than CHORD_LAST_SHARE of what is left to
+    the tolerance -- and reach the equilibrium Newton reaches from the same start."""
+    import facesim.inverse.jacobian as jac
+
+    calls, tol, _ = _recorded_near_solve(box_model, monkeypatch)
+    for k, (res, _, rtol) in enumerate(calls):
+        eta = jac.CHORD_NEWTON_RTOL if k == 0 else min(jac.CHORD_NEWTON_RTOL,
+                                                       jac.CHORD_NEWTON_GAMMA * (res / calls[k - 1][0]) ** 2)
+        assert rtol == pytest.approx(max(eta, jac.CHORD_LAST_SHARE * tol / res), rel=1e-12), (k, calls)
+    # the later steps are solved tighter than the first: the forcing term follows the convergence
+    assert calls[-1][2] < calls[0][2]
+
+
+def test_near_equilibrium_last_newton_step_reuses_the_tangent(box_model, monkeypatch):
+    """A Newton step of near_equilibrium whose predecessor's rate would take it within
+    CHORD_LAST_SHARE of the tolerance reuses that step's tangent (the same matrix, no assembly);
+    every other Newton step assembles its own. The solve still reaches Newton's equilibrium."""
+    import facesim.inverse.jacobian as jac
+
+    calls, tol, assembled = _recorded_near_solve(box_model, monkeypatch)
     reuse = [k > 0 and (res / calls[k - 1][0]) * res <= jac.CHORD_LAST_SHARE * tol
-             for k, (res, _) in enumerate(calls)]
+             for k, (res, _, _) in enumerate(calls)]
     assert any(reuse) and not all(reuse), [c[0] for c in calls]   # the case exercises both
-    for k, (res, A) in enumerate(calls):
+    for k, (_, A, _) in enumerate(calls):
         assert (A is calls[k - 1][1]) == reuse[k], (k, [c[0] for c in calls])
-    assert len(assembled) == len(calls) - sum(reuse)
+    assert assembled == len(calls) - sum(reuse)
