@@ -453,7 +453,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
         retried = False
         du = None
         newton_before = False   # the step to this iterate was a Newton step (its rate predicts the next one's)
-        A = None   # the last Newton step's tangent
+        A = None   # the last Newton step's tangent (set whenever newton_before is)
         for it in range(max_iterations + 1):
             g = g0 if it == 0 else prob.energy_and_gradient(x)[1]
             res = float(np.linalg.norm(g))
@@ -498,7 +498,7 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
                 # modified Newton step contracts by about the last step's rate (the tangent moved by
                 # O(|du|) since), so it converges too, without an assembly -- the demo clip's last
                 # steps from ~1e-5 to ~1e-6 N (benchmarks/RESULTS.md, session 34)
-                if not (newton_before and A is not None and rate * res <= CHORD_LAST_SHARE * tol):
+                if not (newton_before and rate * res <= CHORD_LAST_SHARE * tol):   # (a Newton step before: A is set)
                     A = prob.hessian(x, project=False)
                 du, info, its = counted_cg(A, -g, max(eta, CHORD_LAST_SHARE * tol / res), CHORD_NEWTON_MAXITER, M)
                 solves += its
