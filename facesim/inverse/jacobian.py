@@ -428,20 +428,27 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     0.209 against 0.287). ``previous`` (``(n, 3)``, the equilibrium the step starts from): its flesh
     with the bones moved to ``controls`` is the start instead when its residual is lower. A
     first-order prediction can be far off (the paper-size face's first tracked frame, on a fresh
-    Jacobian: residual 294 against 1.29 from the moved bones, benchmarks/RESULTS.md, session 23); one more gradient and a harmonic solve check it."""
+    Jacobian: residual 294 against 1.29 from the moved bones, benchmarks/RESULTS.md, session 23); one more gradient and a harmonic solve check it. An ``x0`` that, bones
+    placed, has a tet crushed below :data:`~facesim.fem.equilibrium.PREDICT_MIN_J` is then dropped
+    for that start rather than refined (the same face's first tracked frame: 3.5 s of
+    as-rigid-as-possible steps for a residual of 90 against 1.27)."""
     import scipy.sparse.linalg as spla
 
     extras = sim.solve_terms(controls, frame, extra_terms)   # the same energy as FaceSimulator.equilibrium
     system = sim.system
     solves = 0
     with single_blas_thread():
-        prob = Problem(sim.terms + extras, system, sim.predict(controls, x0), controls.a)
-        g0 = prob.energy_and_gradient(prob.x_fixed)[1]
+        # with another start to compare, a crushed x0 is dropped rather than refined (FaceSimulator.predict)
+        start = sim.predict(controls, x0, repair=previous is None)
+        prob = g0 = None
+        if start is not None:
+            prob = Problem(sim.terms + extras, system, start, controls.a)
+            g0 = prob.energy_and_gradient(prob.x_fixed)[1]
         if previous is not None:
-            moved = sim.predict(controls, previous)
-            g_moved = prob.energy_and_gradient(moved)[1]
-            if np.linalg.norm(g_moved) < np.linalg.norm(g0):
-                prob, g0 = Problem(sim.terms + extras, system, moved, controls.a), g_moved
+            moved = Problem(sim.terms + extras, system, sim.predict(controls, previous), controls.a)
+            g_moved = moved.energy_and_gradient(moved.x_fixed)[1]
+            if g0 is None or np.linalg.norm(g_moved) < np.linalg.norm(g0):
+                prob, g0 = moved, g_moved
         newton = sim.options.newton
         tol = newton.rtol * sim.force_scale(controls, extras, prob.x_fixed) + newton.atol
         u = prob.x_fixed[system.active].ravel().copy()

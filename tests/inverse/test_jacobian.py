@@ -238,6 +238,51 @@ def test_pardiso_superlu_and_amg_jacobians_agree(box_model):
         equilibrium_jacobian(sim, controls, x, space, linear_solver="mumps")
 
 
+def _crushed(sim, x):
+    """``x (n, 3)`` with one free node of a simulated tet reflected through the plane of the tet's
+    other three nodes: that tet inverted (volume ratio about -1)."""
+    model = sim.model
+    free = ~sim.fixed.all(axis=1)
+    tets = model.tets[sim.elems]
+    k = int(np.flatnonzero(free[tets[:, 0]])[0])
+    a, b, c, d = (x[i] for i in tets[k])
+    n = np.cross(c - b, d - b)
+    n /= np.linalg.norm(n)
+    out = x.copy()
+    out[tets[k, 0]] = a - 2.0 * np.dot(a - b, n) * n
+    assert sim.element_quality(out)[1] < -0.5
+    return out
+
+
+def test_near_equilibrium_drops_a_crushed_start_when_it_has_another(box_model, monkeypatch):
+    """With the previous equilibrium to fall back on, a start x0 with an inverted tet is dropped
+    (FaceSimulator.predict(repair=False) gives None), not refined by as-rigid-as-possible steps
+    only to lose to the other start, and the solve reaches Newton's equilibrium from the other one;
+    alone, the crushed start is refined as before."""
+    import facesim.fem.equilibrium as equilibrium_module
+    from facesim.inverse.jacobian import near_equilibrium
+
+    sim, eq, J, dc, target = _near_case(box_model)
+    newton = sim.equilibrium(target, x0=J.predict(dc))
+    crushed = _crushed(sim, J.predict(dc))
+    assert sim.predict(target, crushed, repair=False) is None
+    np.testing.assert_array_equal(sim.predict(target, J.predict(dc), repair=False), sim.predict(target, J.predict(dc)))
+    refine = equilibrium_module.FaceSimulator._as_rigid_as_possible
+    refined = []
+
+    def counting(self, *args, **kwargs):
+        refined.append(1)
+        return refine(self, *args, **kwargs)
+
+    monkeypatch.setattr(equilibrium_module.FaceSimulator, "_as_rigid_as_possible", counting)
+    scale = np.abs(newton.x - eq.x).max()
+    x, _, _, ok = near_equilibrium(sim, target, crushed, J.tangent, previous=eq.x)
+    assert ok and not refined
+    np.testing.assert_allclose(x, newton.x, atol=1e-6 * scale)
+    x, _, _, _ = near_equilibrium(sim, target, crushed, J.tangent)   # (its caller goes on with Newton)
+    assert len(refined) == 1 and np.isfinite(x).all()
+
+
 def _recorded_near_solve(box_model, monkeypatch):
     """near_equilibrium on :func:`_near_case` (one chord iteration, then Newton steps) with its CG
     calls ``(|b|, A, rtol)``, its tolerance and its Hessian assemblies recorded; checks that it
