@@ -22,7 +22,8 @@ Speed (issue 5; the paper's figures: tracking frames usually take one Gauss-Newt
 line search ~10 % of the time):
 
 * **Full step first.** The step ``dc`` is tried at length 1 (an equilibrium warm-started from the
-  Jacobian's first-order prediction) and kept when the objective drops by at least
+  Jacobian's first-order prediction, or from the last equilibrium with the bones moved where that
+  is nearer or the Jacobian is a nearby tangent's) and kept when the objective drops by at least
   ``accept_ratio`` of what the linear model predicted -- lengthened by one more trial where the
   markers moved less than predicted (stiffening tissue). When it fails, one backtracking trial at
   the minimum of the parabola through ``F(0)``, ``F'(0)``, ``F(1)``, and if that fails too the
@@ -578,9 +579,14 @@ def _fit_frame(sim, targets, controls, x0, space, options, weights, extra_terms,
             if small(dc, F, predicted):
                 stop = "converged"
                 break
-            # the full step first, its equilibrium warm-started from the first-order prediction
+            # the full step first, its equilibrium warm-started from the first-order prediction (or
+            # from x with the bones moved, when that is nearer) -- with a nearby Jacobian from x with
+            # the bones moved alone: its columns, solved with another state's factor, are off by 9 %
+            # in the median (the paper-size face after its coarse-to-fine cold frame): its
+            # prediction started no trial better there, and it costs a start and a gradient
+            # (0.3-0.5 s a tracked frame; benchmarks/RESULTS.md, session 35)
             t = time.perf_counter()
-            x1 = solve(ctrl(c + dc), J.predict(dc[:nc]), J, x)
+            x1 = solve(ctrl(c + dc), x, J) if J.nearby else solve(ctrl(c + dc), J.predict(dc[:nc]), J, x)
             F1 = math.inf if x1 is None else objective(c + dc, x1, mu)
             clock["equilibria"] += time.perf_counter() - t
             rep.ratios.append((F - F1) / predicted)

@@ -227,6 +227,43 @@ def test_a_jacobian_of_a_nearby_tangent_takes_no_extension_trials(fine_sim, box_
     assert fit.report.full_steps == 1 and calls == [1]
 
 
+
+def test_a_jacobian_of_a_nearby_tangent_starts_its_step_from_the_equilibrium(fine_sim, box_model, targets,
+                                                                            monkeypatch):
+    """The full step's trial equilibrium starts from the Jacobian's first-order prediction, with
+    the last equilibrium (bones moved) as the other candidate -- but with a nearby tangent's
+    Jacobian from that equilibrium alone, its prediction left out. Both reach the same fit."""
+    from facesim.inverse import gauss_newton
+
+    starts = []
+    near = gauss_newton.near_equilibrium
+
+    def recording(sim, controls, x0, tangent, *args, previous=None, **kwargs):
+        starts.append((x0, previous))
+        return near(sim, controls, x0, tangent, *args, previous=previous, **kwargs)
+
+    monkeypatch.setattr(gauss_newton, "near_equilibrium", recording)
+    space = ControlSpace.of(fine_sim)
+    start = CoarseStart(fine_sim, box_model)
+    options = FitOptions(noise=0.05)
+    coarse = fit_frame(start.sim, targets, start.down(Controls(np.zeros(2), jaw=np.zeros(3))), None,
+                       start.space(space), options)
+    ctrl, x, J, _ = start.refine(coarse.controls, coarse.x, space, options)
+    one = FitOptions(noise=0.05, max_steps=1)
+    fits = []
+    for jacobian in (J, dataclasses.replace(J, nearby=False)):
+        starts.clear()
+        fits.append(fit_frame(fine_sim, targets, ctrl, x, space, one, jacobian=jacobian))
+        assert fits[-1].report.full_steps == 1 and len(starts) >= 1
+        x0, previous = starts[0]
+        if jacobian.nearby:
+            assert x0 is x and previous is None
+        else:
+            assert previous is x and np.abs(x0 - x).max() > 1e-3   # the prediction moved it
+    np.testing.assert_allclose(fits[0].controls.a, fits[1].controls.a, atol=1e-6)
+    scale = np.abs(fits[0].x - x).max()
+    np.testing.assert_allclose(fits[0].x, fits[1].x, atol=1e-5 * scale)
+
 @pytest.fixture(scope="module")
 def coarsest_box():
     """The box meshed coarser still (144 tets, 15-20 mm cells): the third level of a chain."""
