@@ -428,10 +428,11 @@ def near_equilibrium(sim, controls: Controls, x0, tangent, extra_terms=(), max_i
     0.209 against 0.287). ``previous`` (``(n, 3)``, the equilibrium the step starts from): its flesh
     with the bones moved to ``controls`` is the start instead when its residual is lower. A
     first-order prediction can be far off (the paper-size face's first tracked frame, on a fresh
-    Jacobian: residual 294 against 1.29 from the moved bones, benchmarks/RESULTS.md, session 23); one more gradient and a harmonic solve check it. An ``x0`` that, bones
-    placed, has a tet crushed below :data:`~facesim.fem.equilibrium.PREDICT_MIN_J` is then dropped
-    for that start rather than refined (the same face's first tracked frame: 3.5 s of
-    as-rigid-as-possible steps for a residual of 90 against 1.27)."""
+    Jacobian: residual 294 against 1.29 from the moved bones, benchmarks/RESULTS.md, session 23);
+    one more gradient and a harmonic solve check it. An ``x0`` that, bones placed, has a tet
+    crushed below :data:`~facesim.fem.equilibrium.PREDICT_MIN_J` is then dropped for that start
+    rather than refined (the same face's first tracked frame: 3.5 s of as-rigid-as-possible steps
+    for a residual of 90 against 1.27, session 35)."""
     import scipy.sparse.linalg as spla
 
     extras = sim.solve_terms(controls, frame, extra_terms)   # the same energy as FaceSimulator.equilibrium
