@@ -203,6 +203,18 @@ def test_solve_mocap_with_a_coarse_model(fine_sim, fine_box, box_model, tmp_path
         assert not (tmp_path / "bad" / "frames.csv").exists()
 
 
+def _refined_start(fine_sim, box_model, targets):
+    """``(space, controls, x, J)``: the box fitted coarse from rest and refined on ``fine_sim``
+    (``J`` the refinement's nearby Jacobian)."""
+    space = ControlSpace.of(fine_sim)
+    start = CoarseStart(fine_sim, box_model)
+    options = FitOptions(noise=0.05)
+    coarse = fit_frame(start.sim, targets, start.down(Controls(np.zeros(2), jaw=np.zeros(3))), None,
+                       start.space(space), options)
+    ctrl, x, J, _ = start.refine(coarse.controls, coarse.x, space, options)
+    return space, ctrl, x, J
+
+
 def test_a_jacobian_of_a_nearby_tangent_takes_no_extension_trials(fine_sim, box_model, targets, monkeypatch):
     """A kept full step is lengthened where the markers moved less than ``J dc`` predicted; a
     Jacobian solved with a nearby tangent (the refinement's) mispredicts by itself, so its steps
@@ -212,12 +224,7 @@ def test_a_jacobian_of_a_nearby_tangent_takes_no_extension_trials(fine_sim, box_
     calls = []
     extend = gauss_newton._extend
     monkeypatch.setattr(gauss_newton, "_extend", lambda *a: calls.append(1) or extend(*a))
-    space = ControlSpace.of(fine_sim)
-    start = CoarseStart(fine_sim, box_model)
-    options = FitOptions(noise=0.05)
-    coarse = fit_frame(start.sim, targets, start.down(Controls(np.zeros(2), jaw=np.zeros(3))), None,
-                       start.space(space), options)
-    ctrl, x, J, _ = start.refine(coarse.controls, coarse.x, space, options)
+    space, ctrl, x, J = _refined_start(fine_sim, box_model, targets)
     assert J.nearby and J.secant_update(np.ones(space.size) * 1e-3, x, J.dP[:, 0] * 1e-3, ctrl).nearby
     one = FitOptions(noise=0.05, max_steps=1)   # the step taken with that Jacobian
     calls.clear()
@@ -225,7 +232,6 @@ def test_a_jacobian_of_a_nearby_tangent_takes_no_extension_trials(fine_sim, box_
     assert fit.report.full_steps == 1 and not calls
     fit = fit_frame(fine_sim, targets, ctrl, x, space, one, jacobian=dataclasses.replace(J, nearby=False))
     assert fit.report.full_steps == 1 and calls == [1]
-
 
 
 def test_a_jacobian_of_a_nearby_tangent_starts_its_step_from_the_equilibrium(fine_sim, box_model, targets,
@@ -243,12 +249,7 @@ def test_a_jacobian_of_a_nearby_tangent_starts_its_step_from_the_equilibrium(fin
         return near(sim, controls, x0, tangent, *args, previous=previous, **kwargs)
 
     monkeypatch.setattr(gauss_newton, "near_equilibrium", recording)
-    space = ControlSpace.of(fine_sim)
-    start = CoarseStart(fine_sim, box_model)
-    options = FitOptions(noise=0.05)
-    coarse = fit_frame(start.sim, targets, start.down(Controls(np.zeros(2), jaw=np.zeros(3))), None,
-                       start.space(space), options)
-    ctrl, x, J, _ = start.refine(coarse.controls, coarse.x, space, options)
+    space, ctrl, x, J = _refined_start(fine_sim, box_model, targets)
     one = FitOptions(noise=0.05, max_steps=1)
     fits = []
     for jacobian in (J, dataclasses.replace(J, nearby=False)):
