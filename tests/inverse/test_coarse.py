@@ -265,6 +265,7 @@ def test_a_jacobian_of_a_nearby_tangent_starts_its_step_from_the_equilibrium(fin
     scale = np.abs(fits[0].x - x).max()
     np.testing.assert_allclose(fits[0].x, fits[1].x, atol=1e-5 * scale)
 
+
 @pytest.fixture(scope="module")
 def coarsest_box():
     """The box meshed coarser still (144 tets, 15-20 mm cells): the third level of a chain."""
